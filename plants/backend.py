@@ -1,0 +1,69 @@
+"""One set of math operations that works on numpy arrays and on casadi symbols.
+
+Every model in :mod:`plants` is written once as ``f(x, u, w, p)`` with the
+functions of the namespace returned by :func:`ops_for`; the same code then
+evaluates numerically (numpy, also batched with arrays shaped ``(n, N)``) and
+symbolically (casadi ``SX``/``MX``), so simulation, linearisation, sweeps and
+code generation share one definition.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+
+_CASADI_TYPES = (ca.SX, ca.MX, ca.DM)
+
+
+def is_symbolic(*values) -> bool:
+    """True if any value is a casadi matrix (then casadi operations are used)."""
+    return any(isinstance(v, _CASADI_TYPES) for v in values)
+
+
+def _np_stack(items):
+    arrays = [np.asarray(i, dtype=float) for i in items]
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    return np.stack([np.broadcast_to(a, shape) for a in arrays])
+
+
+def _ca_stack(items):
+    return ca.vertcat(*items)
+
+
+NUMPY = SimpleNamespace(
+    name="numpy",
+    sin=np.sin, cos=np.cos, tan=np.tan, arctan=np.arctan, arctan2=np.arctan2,
+    sqrt=np.sqrt, tanh=np.tanh, exp=np.exp, fabs=np.abs, fmax=np.maximum, fmin=np.minimum,
+    stack=_np_stack,
+)
+
+CASADI = SimpleNamespace(
+    name="casadi",
+    sin=ca.sin, cos=ca.cos, tan=ca.tan, arctan=ca.atan, arctan2=ca.atan2,
+    sqrt=ca.sqrt, tanh=ca.tanh, exp=ca.exp, fabs=ca.fabs, fmax=ca.fmax, fmin=ca.fmin,
+    stack=_ca_stack,
+)
+
+
+def ops_for(*values) -> SimpleNamespace:
+    """The operation namespace (numpy or casadi) suited to ``values``."""
+    return CASADI if is_symbolic(*values) else NUMPY
+
+
+def unpack(vec, names):
+    """Split a state/input vector into a namespace of named rows.
+
+    Works for numpy arrays shaped ``(n,)`` or ``(n, N)`` and for casadi column
+    vectors; raises if the length does not match ``names``.
+    """
+    n = vec.shape[0]
+    if n != len(names):
+        raise ValueError(f"expected a vector of {len(names)} signals {tuple(names)}, got length {n}")
+    return SimpleNamespace(**{name: vec[i] for i, name in enumerate(names)})
+
+
+def smooth_abs(x, eps, ops):
+    """sqrt(x^2 + eps^2): |x| without the kink at 0 (keeps derivatives finite)."""
+    return ops.sqrt(x * x + eps * eps)

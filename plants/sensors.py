@@ -1,0 +1,168 @@
+"""Sensor models: gyro, accelerometers, wheel speeds, steer angle, GPS (single and dual antenna).
+
+Measurements are drawn from the truth signals of a run, with every noise source
+seeded from one seed (one independent stream per sensor, so adding a sensor does
+not change the others). Units and signs are those of the drive-log schema in
+``DESIGN.md``.
+
+GPS: fixes every ``1 / gps_rate`` s (from ``gps_start``). Each fix reports the
+antenna's course ``yaw + atan2(v_y + r x_a, v_x - r y_a)`` (same sense and
+reference as yaw, wrapped to (-pi, pi]), its ground speed, HDOP and satellite
+count, describing the truth ``gps_latency`` s before the row it appears on. The
+horizontal velocity noise is ``gps_velocity_noise * hdop`` [m/s] per axis, so the
+course noise is that divided by the ground speed; below ``gps_min_speed`` a
+receiver's course is meaningless and is reported as NaN. Outage windows have no
+fix at all. The dual-antenna heading is yaw plus white noise at the same rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ModelError
+from .params import G
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorConfig:
+    """Noise, bias and placement of the sensors. Defaults: automotive MEMS IMU + CCA-600-like GPS."""
+
+    gyro_noise: float = 0.004
+    """Yaw-rate white noise std per sample [rad/s] (0.01 deg/s/sqrt(Hz) at 1 kHz)."""
+    gyro_bias: float = 0.0
+    """Constant yaw-rate gyro bias [rad/s]."""
+    gyro_scale_error: float = 0.0
+    """Yaw-rate gyro scale-factor error [-] (0.01 = reads 1 % high)."""
+    roll_gyro_noise: float = 0.004
+    roll_gyro_bias: float = 0.0
+    accel_noise: float = 0.05
+    """Accelerometer white noise std per sample [m/s^2]."""
+    accel_bias_x: float = 0.0
+    accel_bias_y: float = 0.0
+    speed_noise: float = 0.02
+    """Wheel-speed-derived longitudinal speed noise std [m/s]."""
+    wheel_speed_noise: float = 0.05
+    """Wheel angular speed noise std [rad/s]."""
+    steer_noise: float = 2e-4
+    """Road-wheel angle sensor noise std [rad]."""
+    gps_rate: float = 5.0
+    """GPS fix rate [Hz] (seed 003: 5 Hz)."""
+    gps_start: float = 0.0
+    gps_latency: float = 0.0
+    """Age of each fix when it arrives [s]."""
+    gps_velocity_noise: float = 0.04
+    """Horizontal velocity noise per axis at HDOP 1 [m/s] (0.14 deg course RMS at 60 km/h, seed 003)."""
+    gps_hdop: float = 0.9
+    gps_sats: int = 10
+    gps_min_speed: float = 0.5
+    """Below this ground speed [m/s] the course is reported as NaN."""
+    gps_outages: tuple[tuple[float, float], ...] = ()
+    """(start, end) windows [s] with no fix."""
+    gps_antenna_x: float = 0.0
+    """Antenna position ahead of the CG [m] (lever arm)."""
+    gps_antenna_y: float = 0.0
+    """Antenna position left of the CG [m]."""
+    heading_noise: float = np.deg2rad(0.1)
+    """Dual-antenna heading noise std [rad] (seed 000: 0.1 deg)."""
+
+    def __post_init__(self) -> None:
+        for name in ("gyro_noise", "roll_gyro_noise", "accel_noise", "speed_noise", "wheel_speed_noise",
+                     "steer_noise", "gps_latency", "gps_velocity_noise", "heading_noise", "gps_min_speed"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ModelError(f"sensor setting '{name}' must be >= 0, got {v!r}")
+        if not (np.isfinite(self.gps_rate) and self.gps_rate > 0):
+            raise ModelError(f"sensor setting 'gps_rate' must be > 0 Hz, got {self.gps_rate!r}")
+        if not self.gps_hdop > 0:
+            raise ModelError(f"sensor setting 'gps_hdop' must be > 0, got {self.gps_hdop!r}")
+        for win in self.gps_outages:
+            if len(win) != 2 or not win[1] > win[0]:
+                raise ModelError(f"GPS outage window {win!r} must be (start, end) with end > start")
+
+
+STREAMS = ("gyro", "roll_gyro", "accel", "speed", "wheel", "steer", "gps", "heading")
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    children = np.random.SeedSequence(seed).spawn(len(STREAMS))
+    return {name: np.random.default_rng(s) for name, s in zip(STREAMS, children)}
+
+
+def wrap_angle(a):
+    """Wrap to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, float), 2 * np.pi)
+
+
+def gps_fix_mask(t: np.ndarray, cfg: SensorConfig) -> np.ndarray:
+    """Boolean mask of the samples that carry a GPS fix.
+
+    A fix is due at ``gps_start + k / gps_rate``; it lands on the first sample at or
+    after that time (so any sample rate, fixed or varying, works). Outage windows
+    ``[start, end)`` remove fixes.
+    """
+    t = np.asarray(t, float)
+    k = np.floor((t - cfg.gps_start) * cfg.gps_rate + 1e-9)
+    mask = (t >= cfg.gps_start - 1e-12) & (np.concatenate([[-1.0], k[:-1]]) != k)
+    for a, b in cfg.gps_outages:
+        mask &= ~((t >= a) & (t < b))
+    return mask
+
+
+def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: int,
+            wheel_radius: float | None) -> dict:
+    """Sensor readings for a run.
+
+    ``truth`` holds the plant's named truth outputs (arrays over ``t``), ``inputs``
+    the applied ``steer`` and ``yaw_moment``. Returns drive-log columns (NaN where
+    a GPS row has no fix).
+    """
+    t = np.asarray(t, float)
+    n = len(t)
+    rng = _streams(seed)
+    r = truth["yaw_rate"]
+    out = {
+        "speed": None, "steer": inputs["steer"] + cfg.steer_noise * rng["steer"].standard_normal(n),
+        "yaw_moment": np.asarray(inputs["yaw_moment"], float),
+        "yaw_rate": (1.0 + cfg.gyro_scale_error) * r + cfg.gyro_bias + cfg.gyro_noise * rng["gyro"].standard_normal(n),
+        "roll_rate": truth["roll_rate"] + cfg.roll_gyro_bias + cfg.roll_gyro_noise * rng["roll_gyro"].standard_normal(n),
+    }
+    # Accelerometers on the sprung mass: specific force, gravity enters through roll + bank.
+    tilt = truth["roll"] + inputs.get("bank", 0.0)
+    acc_noise = rng["accel"].standard_normal((2, n))
+    out["ax"] = truth["ax"] + cfg.accel_bias_x + cfg.accel_noise * acc_noise[0]
+    out["ay"] = truth["ay"] * np.cos(truth["roll"]) + G * np.sin(tilt) + cfg.accel_bias_y + cfg.accel_noise * acc_noise[1]
+    # Wheel speeds and the longitudinal speed from the non-driven (front) wheels.
+    wheel_noise = rng["wheel"].standard_normal((4, n))
+    for i, wname in enumerate(("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")):
+        out[wname] = truth[wname] + cfg.wheel_speed_noise * wheel_noise[i]
+    if wheel_radius is not None and np.all(np.isfinite(truth["wheel_speed_fl"])):
+        v_front = 0.5 * (truth["wheel_speed_fl"] + truth["wheel_speed_fr"]) * wheel_radius
+    else:
+        v_front = truth["vx"]
+    out["speed"] = v_front + cfg.speed_noise * rng["speed"].standard_normal(n)
+    # GPS.
+    fix = gps_fix_mask(t, cfg)
+    t_meas = t - cfg.gps_latency
+    interp = (lambda sig: np.interp(t_meas, t, sig))
+    yaw_c = interp(truth["yaw"])
+    vx_a = interp(truth["vx"] - truth["yaw_rate"] * cfg.gps_antenna_y)
+    vy_a = interp(truth["vy"] + truth["yaw_rate"] * cfg.gps_antenna_x)
+    # rotate the antenna velocity into the earth frame, add noise there
+    ve = vx_a * np.cos(yaw_c) - vy_a * np.sin(yaw_c)
+    vn = vx_a * np.sin(yaw_c) + vy_a * np.cos(yaw_c)
+    gps_noise = rng["gps"].standard_normal((2, n))
+    sigma = cfg.gps_velocity_noise * cfg.gps_hdop
+    ve_m, vn_m = ve + sigma * gps_noise[0], vn + sigma * gps_noise[1]
+    ground = np.hypot(ve_m, vn_m)
+    course = wrap_angle(np.arctan2(vn_m, ve_m))
+    course = np.where(ground >= cfg.gps_min_speed, course, np.nan)
+    nan = np.full(n, np.nan)
+    out["gps_course"] = np.where(fix, course, nan)
+    out["gps_speed"] = np.where(fix, ground, nan)
+    out["gps_hdop"] = np.where(fix, cfg.gps_hdop, nan)
+    out["gps_sats"] = np.where(fix, float(cfg.gps_sats), nan)
+    heading = wrap_angle(yaw_c + cfg.heading_noise * rng["heading"].standard_normal(n))
+    out["gps_heading"] = np.where(fix, heading, nan)
+    return out

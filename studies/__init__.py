@@ -1,0 +1,1 @@
+"""Thin, deterministic design-study scripts built on the public API."""

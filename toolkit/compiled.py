@@ -1,0 +1,271 @@
+"""Compiled time loops: casadi step functions, ``mapaccum`` and C code generation.
+
+The plant's ``f(x, u, w, p)`` is traced once with casadi symbols (parameters
+are symbolic inputs, so one compiled library serves every parameter set of a
+model), integrated with classic RK4 (``n_sub`` sub-steps per sample, inputs held),
+and rolled out over a chunk of samples by ``mapaccum``. The chunk is compiled to
+C with casadi's code generator and ``gcc -O3`` into a shared library cached under
+``$EVSTAB_CACHE`` (default ``~/.cache/evstab``); with no C compiler the same casadi
+function runs in casadi's virtual machine (slower, identical numbers to ~1e-15).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import warnings
+from dataclasses import fields
+from functools import lru_cache
+from pathlib import Path
+from types import SimpleNamespace
+
+import ctypes
+
+import casadi as ca
+import numpy as np
+
+from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams
+
+CODE_VERSION = "2"
+"""Bump when generated code changes meaning (invalidates the compiled cache)."""
+CHUNK = 2000
+"""Samples per compiled rollout call."""
+
+
+# ----------------------------------------------------------------- parameters
+def numeric_fields(p: VehicleParams) -> tuple[str, ...]:
+    """Names of the numeric, set fields of ``p`` (the symbolic parameter vector's order)."""
+    return tuple(f.name for f in fields(p) if f.name not in ("name", "source") and getattr(p, f.name) is not None)
+
+
+def param_vector(p: VehicleParams, names: tuple[str, ...]) -> np.ndarray:
+    return np.array([float(getattr(p, n)) for n in names])
+
+
+def symbolic_params(p: VehicleParams, names: tuple[str, ...]):
+    """A stand-in for ``p`` whose set fields are casadi symbols (unset ones stay None)."""
+    vec = ca.SX.sym("p", len(names))
+    ns = {f.name: None for f in fields(p)}
+    ns.update({n: vec[i] for i, n in enumerate(names)})
+    ns["name"], ns["source"] = p.name, p.source
+    sp = SimpleNamespace(**ns)
+    sp.wheelbase = sp.lf + sp.lr
+    return sp, vec
+
+
+# ------------------------------------------------------------------ functions
+def rk4_substeps(model: PlantModel, p: VehicleParams, dt: float) -> int:
+    """Number of RK4 sub-steps per sample that keeps the stiffest mode stable."""
+    from plants import two_track
+    if model.name == "two-track":
+        return max(1, int(np.ceil(dt / two_track.max_stable_step(p))))
+    return 1
+
+
+def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
+    """casadi ``step(x, cmd, w, pvec) -> (x_next, y)``: RK4 over one sample, commands held.
+
+    ``y`` are the truth outputs at the start of the sample; the command map (e.g.
+    the speed hold) is evaluated at every RK4 stage.
+    """
+    names = numeric_fields(p)
+    sp, pvec = symbolic_params(p, names)
+    x = ca.SX.sym("x", len(model.states))
+    cmd = ca.SX.sym("cmd", len(COMMANDS))
+    w = ca.SX.sym("w", len(DISTURBANCES))
+    h = dt / n_sub
+
+    def rhs(xx):
+        return model.f(xx, model.command_map(cmd, xx, sp), w, sp)
+
+    xk = x
+    for _ in range(n_sub):
+        k1 = rhs(xk)
+        k2 = rhs(xk + h / 2 * k1)
+        k3 = rhs(xk + h / 2 * k2)
+        k4 = rhs(xk + h * k3)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    y = model.h(x, model.command_map(cmd, x, sp), w, sp)
+    step = ca.Function("step", [x, cmd, w, pvec], [xk, y], ["x", "cmd", "w", "p"], ["x_next", "y"])
+    return step, names
+
+
+def _cache_dir() -> Path:
+    root = os.environ.get("EVSTAB_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "evstab")
+    return Path(root)
+
+
+def compiler() -> str | None:
+    """The C compiler used for generated code (``$CC`` or gcc/cc on PATH), or None."""
+    for cand in (os.environ.get("CC"), "gcc", "cc"):
+        if cand and shutil.which(cand):
+            return cand
+    return None
+
+
+def _compile(funcs: list, key: str) -> Path | None:
+    cc = compiler()
+    if cc is None:
+        return None
+    out_dir = _cache_dir()
+    lib = out_dir / f"evstab_{key}.so"
+    if lib.is_file():
+        return lib
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
+        name = f"evstab_{key}"
+        cg = ca.CodeGenerator(name + ".c", {"with_header": False})
+        for fn in funcs:
+            cg.add(fn)
+        cg.generate(tmp + os.sep)
+        tmp_lib = Path(tmp) / (name + ".so")
+        res = subprocess.run([cc, "-O3", "-shared", "-fPIC", "-o", str(tmp_lib), str(Path(tmp) / (name + ".c")),
+                              "-lm"], capture_output=True, text=True)
+        if res.returncode != 0:
+            warnings.warn(f"evstab: C compilation failed, using casadi's virtual machine: {res.stderr[:500]}")
+            return None
+        os.replace(tmp_lib, lib)  # atomic: a concurrent reader sees the old or the complete file
+    return lib
+
+
+class CFunction:
+    """Direct ctypes call of a casadi-generated C function on numpy buffers (no copies).
+
+    casadi's generated API is ``int f(const double** arg, double** res, casadi_int* iw,
+    double* w, int mem)`` with work sizes from ``f_work``; dense matrices are
+    column-major, so an (n, N) casadi matrix is an (N, n) C-ordered numpy array.
+    """
+
+    def __init__(self, lib: ctypes.CDLL, name: str, fn: ca.Function):
+        self.fn = fn
+        work = getattr(lib, name + "_work")
+        szs = [ctypes.c_longlong() for _ in range(4)]
+        work.argtypes = [ctypes.POINTER(ctypes.c_longlong)] * 4
+        if work(*[ctypes.byref(s) for s in szs]) != 0:
+            raise RuntimeError(f"{name}_work failed")
+        sz_arg, sz_res, sz_iw, sz_w = (s.value for s in szs)
+        self._arg = (ctypes.c_void_p * max(sz_arg, 1))()
+        self._res = (ctypes.c_void_p * max(sz_res, 1))()
+        self._iw = np.zeros(max(sz_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(sz_w, 1), dtype=np.float64)
+        self._call = getattr(lib, name)
+        self._call.restype = ctypes.c_int
+        self._call.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+        self.n_in, self.n_out = fn.n_in(), fn.n_out()
+
+    def __call__(self, args: list, results: list) -> None:
+        """``args``/``results`` are float64 C-contiguous arrays (or ctypes addresses) in casadi's layout."""
+        for i, a in enumerate(args):
+            self._arg[i] = a if isinstance(a, int) else a.ctypes.data
+        for i, r in enumerate(results):
+            self._res[i] = r if isinstance(r, int) else r.ctypes.data
+        if self._call(self._arg, self._res, self._iw.ctypes.data, self._w.ctypes.data, 0) != 0:
+            raise RuntimeError("compiled evstab function reported an error")
+
+
+class CompiledPlant:
+    """A plant, a parameter set and a sample time, ready to roll out fast.
+
+    ``rollout(x0, cmd, w)`` integrates a whole run in chunks of :data:`CHUNK`
+    samples per call; ``step(x, cmd, w)`` advances one sample (for loops closed
+    in Python). ``backend`` is ``"c"`` (compiled) or ``"vm"`` (casadi VM).
+    """
+
+    def __init__(self, model: PlantModel, p: VehicleParams, dt: float, *, compile: bool = True):
+        model.check_params(p)
+        self.model, self.params, self.dt = model, p, float(dt)
+        self.n_sub = rk4_substeps(model, p, dt)
+        step, names = build_step(model, p, dt, self.n_sub)
+        self.pvec = param_vector(p, names)
+        acc = step.mapaccum("rollout_acc", CHUNK)
+        mx = [ca.MX.sym(n, *step.size_in(i)) for i, n in enumerate(("x0", "cmd", "w", "p"))]
+        mx[1] = ca.MX.sym("cmd", len(COMMANDS), CHUNK)
+        mx[2] = ca.MX.sym("w", len(DISTURBANCES), CHUNK)
+        # The parameter vector is passed once per chunk and repeated inside.
+        chunk = ca.Function("rollout", mx, acc(mx[0], mx[1], mx[2], ca.repmat(mx[3], 1, CHUNK)),
+                            ["x0", "cmd", "w", "p"], ["X", "Y"])
+        key = hashlib.sha256("|".join([CODE_VERSION, model.name, ",".join(names), repr(self.dt),
+                                       str(self.n_sub), ca.__version__]).encode()).hexdigest()[:20]
+        lib = _compile([step, chunk], key) if compile else None
+        self.symbolic_step, self._step_fn, self._chunk_fn = step, step, chunk
+        if lib is not None:
+            dll = ctypes.CDLL(str(lib))
+            self._c_step = CFunction(dll, "step", step)
+            self._c_chunk = CFunction(dll, "rollout", chunk)
+            self.backend = "c"
+        else:
+            self.backend = "vm"
+
+    def step(self, x, cmd, w):
+        """One sample: returns ``(x_next, y)`` as numpy arrays."""
+        x = np.ascontiguousarray(x, dtype=float)
+        if self.backend == "c":
+            xn, y = np.empty(len(self.model.states)), np.empty(len(TRUTH))
+            self._c_step([x, np.ascontiguousarray(cmd, dtype=float), np.ascontiguousarray(w, dtype=float),
+                          self.pvec], [xn, y])
+            return xn, y
+        xn, y = self._step_fn(x, cmd, w, self.pvec)
+        return np.array(xn).ravel(), np.array(y).ravel()
+
+    def rollout(self, x0, cmd, w):
+        """Integrate ``N`` samples; ``cmd`` is (4, N), ``w`` is (8, N) or (8,).
+
+        Returns ``(X, Y)``: states (nx, N+1) including ``x0``, and truth outputs
+        (len(TRUTH), N) at the start of each sample.
+        """
+        cmd = np.asarray(cmd, dtype=float)
+        n = cmd.shape[1]
+        w = np.asarray(w, dtype=float)
+        if w.ndim == 1:
+            w = np.repeat(w[:, None], n, axis=1)
+        nx = len(self.model.states)
+        if self.backend == "c":
+            return self._rollout_c(np.asarray(x0, dtype=float), cmd, w, n, nx)
+        X = np.empty((nx, n + 1))
+        Y = np.empty((len(TRUTH), n))
+        X[:, 0] = x0
+        for start in range(0, n, CHUNK):
+            stop = min(start + CHUNK, n)
+            m = stop - start
+            c_blk, w_blk = cmd[:, start:stop], w[:, start:stop]
+            if m < CHUNK:  # pad the last chunk by holding the last input; padded samples are dropped
+                c_blk = np.concatenate([c_blk, np.repeat(c_blk[:, -1:], CHUNK - m, axis=1)], axis=1)
+                w_blk = np.concatenate([w_blk, np.repeat(w_blk[:, -1:], CHUNK - m, axis=1)], axis=1)
+            xs, ys = self._chunk_fn(X[:, start], c_blk, w_blk, self.pvec)
+            X[:, start + 1:stop + 1] = np.array(xs)[:, :m]
+            Y[:, start:stop] = np.array(ys)[:, :m]
+        return X, Y
+
+    def _rollout_c(self, x0, cmd, w, n, nx):
+        # Column-major (k, N) casadi matrices are (N, k) C-ordered numpy arrays.
+        n_pad = -(-n // CHUNK) * CHUNK
+        C = np.empty((n_pad, cmd.shape[0]))
+        C[:n] = cmd.T
+        C[n:] = cmd[:, -1]
+        W = np.empty((n_pad, w.shape[0]))
+        W[:n] = w.T
+        W[n:] = w[:, -1]
+        X = np.empty((n_pad + 1, nx))
+        Y = np.empty((n_pad, len(TRUTH)))
+        X[0] = x0
+        row_c, row_w, row_x, row_y = (a.strides[0] for a in (C, W, X, Y))
+        base_c, base_w, base_x, base_y = (a.ctypes.data for a in (C, W, X, Y))
+        pv = self.pvec
+        for start in range(0, n_pad, CHUNK):
+            self._c_chunk([base_x + start * row_x, base_c + start * row_c, base_w + start * row_w, pv],
+                          [base_x + (start + 1) * row_x, base_y + start * row_y])
+        return X[:n + 1].T, Y[:n].T
+
+
+@lru_cache(maxsize=32)
+def _cached(model_name: str, p: VehicleParams, dt: float, compile: bool) -> CompiledPlant:
+    from plants import get_plant
+    return CompiledPlant(get_plant(model_name), p, dt, compile=compile)
+
+
+def compiled_plant(model: PlantModel, p: VehicleParams, dt: float, *, compile: bool = True) -> CompiledPlant:
+    """A (memoised) :class:`CompiledPlant` for this model, parameter set and sample time."""
+    return _cached(model.name, p, float(dt), compile)

@@ -1,0 +1,168 @@
+"""The drive-log CSV of ``DESIGN.md``: one writer and one reader for simulated and recorded runs.
+
+The writer is atomic (temporary name in the target directory, renamed when
+complete). The reader rejects a bad file with a :class:`LogFormatError` naming the
+file, the row (1-based line number in the file, the header being line 1), the
+column and what was expected.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from plants.errors import EvstabError
+
+SCHEMA = (
+    ("t", "s", True), ("speed", "m/s", True), ("steer", "rad", True), ("yaw_moment", "N m", False),
+    ("yaw_rate", "rad/s", True), ("ax", "m/s^2", False), ("ay", "m/s^2", False), ("roll_rate", "rad/s", False),
+    ("wheel_speed_fl", "rad/s", False), ("wheel_speed_fr", "rad/s", False), ("wheel_speed_rl", "rad/s", False),
+    ("wheel_speed_rr", "rad/s", False), ("gps_course", "rad", True), ("gps_speed", "m/s", False),
+    ("gps_hdop", "-", False), ("gps_sats", "-", False), ("gps_heading", "rad", False),
+)
+"""(column, unit, required) of the drive-log schema, in the order the writer uses."""
+REQUIRED = tuple(c for c, _, req in SCHEMA if req)
+TRUTH_COLUMNS = ("beta_true", "yaw_rate_true", "yaw_true", "vx_true", "vy_true", "roll_true")
+
+
+class LogFormatError(EvstabError, ValueError):
+    """A drive log does not follow the schema; the message names file, row and column."""
+
+
+@dataclass(frozen=True)
+class DriveLog:
+    """Columns of a drive log as float arrays (NaN = empty), plus where it came from."""
+
+    columns: dict
+    source: str
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise LogFormatError(f"{self.source}: no column '{name}'") from None
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.columns
+
+    def __len__(self) -> int:
+        return len(self.columns["t"])
+
+    def without_truth(self) -> "DriveLog":
+        """The same log with every ``*_true`` column removed (what an estimator may see)."""
+        return DriveLog({k: v for k, v in self.columns.items() if not k.endswith("_true")}, self.source)
+
+
+def atomic_write(path: str | Path, write, mode: str = "w") -> None:
+    """Call ``write(fileobj)`` on a temporary file next to ``path``; rename it to ``path`` when done."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    try:
+        kw = {"newline": ""} if "b" not in mode else {}
+        with os.fdopen(fd, mode, **kw) as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_log_csv(path: str | Path, columns: dict) -> None:
+    """Write a drive log: schema columns first (in schema order), then the rest; NaN as empty."""
+    missing = [c for c in REQUIRED if c not in columns]
+    if missing:
+        raise LogFormatError(f"{path}: cannot write a drive log without column(s) {', '.join(missing)}")
+    order = [c for c, _, _ in SCHEMA if c in columns] + [c for c in columns if c not in dict((s[0], 1) for s in SCHEMA)]
+    data = np.column_stack([np.asarray(columns[c], float) for c in order])
+
+    def write(fh):
+        fh.write(",".join(order) + "\n")
+        buf = io.StringIO()
+        np.savetxt(buf, data, fmt="%.12g", delimiter=",")
+        fh.write(buf.getvalue().replace("nan", ""))
+
+    atomic_write(path, write)
+
+
+def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> float:
+    s = text.strip()
+    if s == "" or s.lower() == "nan":
+        if allow_empty:
+            return math.nan
+        raise LogFormatError(f"{source}: row {row}, column '{col}': empty or NaN, expected a finite number")
+    try:
+        v = float(s)
+    except ValueError:
+        raise LogFormatError(f"{source}: row {row}, column '{col}': '{s[:40]}' is not a number") from None
+    if not math.isfinite(v) and not allow_empty:
+        raise LogFormatError(f"{source}: row {row}, column '{col}': {s} is not finite")
+    return v
+
+
+def read_log_csv(path: str | Path) -> DriveLog:
+    """Read and validate a drive-log CSV (see the module docstring for the errors)."""
+    path = Path(path)
+    source = str(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise LogFormatError(f"{source}: cannot read: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise LogFormatError(f"{source}: not UTF-8 text (byte {exc.start})") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise LogFormatError(f"{source}: empty file, expected a header row with columns "
+                             f"{', '.join(REQUIRED)}") from None
+    header = [h.strip() for h in header]
+    seen = set()
+    for h in header:
+        if h in seen:
+            raise LogFormatError(f"{source}: row 1: duplicate column '{h}'")
+        seen.add(h)
+    for c in REQUIRED:
+        if c not in seen:
+            raise LogFormatError(f"{source}: row 1: missing required column '{c}'")
+    known = {c for c, _, _ in SCHEMA} | set(TRUTH_COLUMNS)
+    cols_in = [c for c in header if c]
+    values = {c: [] for c in cols_in}
+    idx = {c: header.index(c) for c in cols_in}
+    never_empty = {"t", "speed", "steer", "yaw_rate"}
+    for row_no, row in enumerate(reader, start=2):
+        if not row or all(not x.strip() for x in row):
+            continue
+        if len(row) != len(header):
+            raise LogFormatError(f"{source}: row {row_no}: {len(row)} fields, expected {len(header)} "
+                                 f"(truncated or malformed line)")
+        for c in cols_in:
+            if c in known:
+                values[c].append(_float(row[idx[c]], source, row_no, c, c not in never_empty))
+            else:  # extra columns are kept (as numbers where they are numbers) and ignored
+                try:
+                    values[c].append(float(row[idx[c]]))
+                except ValueError:
+                    values[c].append(math.nan)
+    if not values["t"]:
+        raise LogFormatError(f"{source}: header only, expected at least one data row")
+    cols = {c: np.asarray(v, float) for c, v in values.items()}
+    t = cols["t"]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if len(bad):
+        r = int(bad[0]) + 3
+        raise LogFormatError(f"{source}: row {r}, column 't': {t[bad[0] + 1]!r} is not after the previous "
+                             f"time {t[bad[0]]!r}; t must be strictly increasing")
+    return DriveLog(cols, source)
