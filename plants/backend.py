@@ -67,3 +67,9 @@ def unpack(vec, names):
 def smooth_abs(x, eps, ops):
     """sqrt(x^2 + eps^2): |x| without the kink at 0 (keeps derivatives finite)."""
     return ops.sqrt(x * x + eps * eps)
+
+
+def smooth_max(a, b, eps, ops):
+    """0.5 (a + b + sqrt((a - b)^2 + eps^2)): max(a, b) rounded over a width ~eps."""
+    d = a - b
+    return 0.5 * (a + b + ops.sqrt(d * d + eps * eps))

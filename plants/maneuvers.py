@@ -191,7 +191,7 @@ def iso3888_1(speed: float, vehicle_width: float, *, lead_in: float = 30.0, run_
         return np.where(x >= s4, _blend(x, s4, e4 - s4, c3, c5), y)
 
     path = path_from_function(y_of_x, -lead_in, g["sections"][-1][1] + run_out)
-    duration = (path.length - lead_in - 10.0) / max(speed, 0.5)
+    duration = (path.length - 10.0) / max(speed, 0.5)
     return Maneuver("iso3888-1", speed, duration, path=path, cones=iso3888_1_cones(vehicle_width),
                     events={"lane_offset": 3.5})
 
@@ -210,7 +210,7 @@ def dlc_000(speed: float, *, b1: float = 3.5, b2: float = 3.5, s1: float = 60.0,
         return np.where(x >= s1 + s2, _blend(x, s1 + s2, s3, b2, 0.0), y)
 
     path = path_from_function(y_of_x, -lead_in, s1 + s2 + s3 + run_out)
-    duration = (path.length - lead_in - 10.0) / max(speed, 0.5)
+    duration = (path.length - 10.0) / max(speed, 0.5)
     return Maneuver("dlc-000", speed, duration, path=path, events={"lane_width": b1, "offset": b2})
 
 

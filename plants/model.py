@@ -83,7 +83,7 @@ class PlantModel:
         iy = [TRUTH.index(o) for o in outputs]
         y = ca.vertcat(*[y[i] for i in iy])
         uw = ca.vertcat(u, w)
-        jac = ca.Function("jac", [x, u, w], [ca.jacobian(xdot, x), ca.jacobian(xdot, uw),
+        jac = ca.Function("linearization", [x, u, w], [ca.jacobian(xdot, x), ca.jacobian(xdot, uw),
                                             ca.jacobian(y, x), ca.jacobian(y, uw)])
         A, B, C, D = (np.array(m) for m in jac(np.asarray(x0, float), np.asarray(u0, float), w0))
         return ContinuousLTI(A=A, B=B, C=C, D=D, states=self.states, inputs=self.inputs + DISTURBANCES,

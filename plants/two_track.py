@@ -20,8 +20,9 @@ combined slip), so a drive or brake torque costs side force. Vertical loads are
 static plus longitudinal (``M h a_x / L``) and lateral (``M h a_y / t``, split
 front/rear by roll-stiffness share) transfer, kept positive smoothly.
 
-Low speed: slips are divided by ``sqrt(v^2 + V_LOW^2)`` instead of ``|v|``, so
-the model is smooth through standstill (the tires act as stiff dampers there).
+Low speed: slips are divided by a smooth ``max(|v|, V_LOW)`` instead of ``|v|``,
+so the model is smooth through standstill (the tires act as stiff dampers there)
+and exact at driving speeds.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import math
 
 import numpy as np
 
-from .backend import ops_for, smooth_abs, unpack
+from .backend import ops_for, smooth_abs, smooth_max, unpack
 from .model import DISTURBANCES, PlantModel
 from .params import G, VehicleParams
 from .tires import combined_forces
@@ -42,7 +43,9 @@ REQUIRED = ("sprung_mass", "roll_inertia", "roll_damping", "roll_stiffness", "ro
             "track_front", "track_rear", "wheel_radius", "wheel_inertia", "longitudinal_stiffness")
 
 V_LOW = 2.5
-"""Slip regularisation speed [m/s]: slips use ``sqrt(v^2 + V_LOW^2)`` as reference speed."""
+"""Slip reference-speed floor [m/s]: slips are divided by a smooth ``max(|v|, V_LOW)``."""
+V_BLEND = 0.5
+"""Width [m/s] of the smooth max; above ``V_LOW + 4 V_BLEND`` the reference speed is |v| to < 0.4 %."""
 LOAD_TRANSFER_TAU = 0.05
 """Time constant [s] of the accelerations that drive load transfer."""
 FZ_MIN = 50.0
@@ -84,7 +87,7 @@ def _forces(x, u, w, p: VehicleParams):
         cs, sn = o.cos(steer[i]), o.sin(steer[i])
         v_long = vxi * cs + vyi * sn
         v_lat = -vxi * sn + vyi * cs
-        v_ref = smooth_abs(v_long, V_LOW, o)
+        v_ref = smooth_max(smooth_abs(v_long, 0.01, o), V_LOW, V_BLEND, o)
         kappa = (omegas[i] * R - v_long) / v_ref
         tan_alpha = v_lat / v_ref
         fx_w, fy_w = combined_forces(kappa, tan_alpha, fz[i], stiff[i][1], mus[i], stiff[i][0],

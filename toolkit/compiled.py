@@ -29,7 +29,7 @@ import numpy as np
 
 from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams
 
-CODE_VERSION = "2"
+CODE_VERSION = "3"
 """Bump when generated code changes meaning (invalidates the compiled cache)."""
 CHUNK = 2000
 """Samples per compiled rollout call."""

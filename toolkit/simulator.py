@@ -126,6 +126,10 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     cmd[COMMANDS.index("drive_on")] = maneuver.drive_on(t)
     cp = compiled_plant(model, params, dt, compile=compile)
     x0 = model.initial_state(params, maneuver.speed)
+    if maneuver.path is not None:  # start on the path, aligned with it
+        path = maneuver.path
+        x0[model.state_index("x")], x0[model.state_index("y")] = path.x[0], path.y[0]
+        x0[model.state_index("yaw")] = np.arctan2(path.y[1] - path.y[0], path.x[1] - path.x[0])
     if maneuver.open_loop:
         cmd[COMMANDS.index("steer")] = maneuver.steer(t)
         X, Y = cp.rollout(x0, cmd, W)
