@@ -1,0 +1,78 @@
+"""Plant simulation speed: evstab's compiled rollout vs python-control, same model, same process.
+
+Each plant runs a 0.5 Hz sine steer at 60 km/h for 10 s at 1 kHz through
+:class:`toolkit.compiled.CompiledPlant` (casadi-generated C, one call per 2000
+samples; and casadi's virtual machine when no compiler is used), and through
+``control.input_output_response`` of a ``control.nlsys`` whose update function
+is the same numpy ``f(x, u, w, p)``. python-control is slow, so by default it
+runs the first ``--ref-seconds`` of the same run and its cost is reported per
+step; the ratio printed is per-step time (python-control / evstab).
+
+Run: ``python benchmarks/bench_plants.py [--vehicle compact-ev] [--ref-seconds 1]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import control
+import numpy as np
+
+from plants import COMMANDS, DISTURBANCES, PLANTS, default_disturbance, load_vehicle
+from toolkit.compiled import CompiledPlant
+
+
+def best_of(fn, repeat):
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vehicle", default="compact-ev")
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--ref-seconds", type=float, default=1.0, help="horizon run through python-control")
+    ap.add_argument("--dt", type=float, default=1e-3)
+    args = ap.parse_args(argv)
+    p = load_vehicle(args.vehicle)
+    n = int(round(args.seconds / args.dt))
+    t = np.arange(n) * args.dt
+    v = 60 / 3.6
+    cmd = np.zeros((len(COMMANDS), n))
+    cmd[0] = np.radians(2.0) * np.sin(2 * np.pi * 0.5 * t)
+    cmd[2], cmd[3] = v, 1.0
+    w = default_disturbance(p.mu)
+    print(f"vehicle {p.name}, {args.seconds:g} s at {1 / args.dt:g} Hz ({n} steps); "
+          f"python-control over the first {args.ref_seconds:g} s")
+    print(f"{'plant':14s} {'evstab C':>12s} {'evstab VM':>12s} {'python-control':>15s} {'ratio C':>9s} {'ratio VM':>9s}")
+    for name, model in PLANTS.items():
+        x0 = model.initial_state(p, v)
+        cp_c = CompiledPlant(model, p, args.dt, compile=True)
+        cp_v = CompiledPlant(model, p, args.dt, compile=False)
+        tc, (Xc, _) = best_of(lambda: cp_c.rollout(x0, cmd, w), 5)
+        tv, _ = best_of(lambda: cp_v.rollout(x0, cmd, w), 2)
+
+        def upd(_t, x, u, _params, model=model):
+            return model.f(x, model.command_map(u[:4], x, p), u[4:], p)
+
+        sys = control.nlsys(upd, None, inputs=len(COMMANDS) + len(DISTURBANCES), states=list(model.states),
+                            outputs=list(model.states), name=name)
+        m = int(round(args.ref_seconds / args.dt))
+        U = np.vstack([cmd[:, :m], np.repeat(w[:, None], m, axis=1)])
+        t0 = time.perf_counter()
+        resp = control.input_output_response(sys, t[:m], U, x0, solve_ivp_kwargs={"max_step": args.dt})
+        tref = time.perf_counter() - t0
+        err = np.abs(resp.states[:, -1] - Xc[:, m - 1]).max()
+        per_c, per_v, per_ref = tc / n, tv / n, tref / m
+        print(f"{name:14s} {per_c * 1e6:9.3f} us {per_v * 1e6:9.3f} us {per_ref * 1e6:12.1f} us "
+              f"{per_ref / per_c:8.0f}x {per_ref / per_v:8.0f}x   (final-state diff {err:.1e}; "
+              f"backend {cp_c.backend}, {cp_c.n_sub} RK4 sub-step(s))")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""The evstab command line: the README's main command, listing, and clear errors (exit status 2)."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from toolkit.cli import main
+from toolkit.logio import read_log_csv
+
+
+def test_vehicles_lists_bundled(capsys):
+    assert main(["vehicles"]) == 0
+    out = capsys.readouterr().out
+    for name in ("micro-ev", "sedan-000", "compact-ev"):
+        assert name in out
+
+
+def test_simulate_writes_log_and_plot(tmp_path, capsys):
+    out, png = tmp_path / "log.csv", tmp_path / "log.png"
+    rc = main(["simulate", "--vehicle", "micro-ev", "--plant", "two-track", "--maneuver", "sine-lane-change",
+               "--speed", "25", "--wind", "--gps-outage", "4:6", "--seed", "3", "--out", str(out), "--plot", str(png)])
+    assert rc == 0
+    log = read_log_csv(out)
+    assert len(log) == 10000
+    t = log["t"]
+    assert np.isnan(log["gps_course"][(t >= 4) & (t < 6)]).all()
+    assert np.isfinite(log["gps_course"][(t >= 6)]).sum() == 20
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_simulate_accepts_toml_path(tmp_path):
+    from importlib import resources
+    src = resources.files("plants").joinpath("data", "compact-ev.toml").read_text()
+    f = tmp_path / "mycar.toml"
+    f.write_text(src)
+    assert main(["simulate", "--vehicle", str(f), "--plant", "bicycle", "--maneuver", "step-steer",
+                 "--speed", "60", "--out", str(tmp_path / "a.csv")]) == 0
+
+
+def test_bad_vehicle_file_exit_2_and_no_output(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[meta]\nname="x"\nsource="y"\n[vehicle]\nmass=-1\n')
+    out = tmp_path / "never.csv"
+    rc = main(["simulate", "--vehicle", str(bad), "--maneuver", "step-steer", "--speed", "50", "--out", str(out)])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "yaw_inertia" in err
+    assert not out.exists()
+
+
+def test_bad_option_exit_2(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--vehicle", "micro-ev", "--maneuver", "step-steer", "--speed", "50",
+              "--gps-outage", "6:4", "--out", "x.csv"])
+    assert e.value.code == 2
+    assert "--gps-outage 6:4: END must be after START" in capsys.readouterr().err
+
+
+def test_console_script_runs(tmp_path):
+    # the installed entry point (what the README's first command uses)
+    r = subprocess.run([sys.executable, "-m", "toolkit.cli", "simulate", "--vehicle", "compact-ev", "--maneuver",
+                        "step-steer", "--speed", "80", "--plant", "bicycle", "--out", str(tmp_path / "x.csv")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "compact-ev bicycle step-steer" in r.stdout
