@@ -29,34 +29,22 @@ def _outage(text: str) -> tuple[float, float]:
     return a, b
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not (np.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{text}'")
-    return v
+def _number(kind: str):
+    """argparse type: a finite number, optionally > 0 ('positive') or >= 0 ('nonneg')."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+        ok = np.isfinite(v) and (kind == "finite" or (v > 0 if kind == "positive" else v >= 0))
+        if not ok:
+            want = {"finite": "a finite number", "positive": "a positive number", "nonneg": "a number >= 0"}[kind]
+            raise argparse.ArgumentTypeError(f"expected {want}, got '{text}'")
+        return v
+    return parse
 
 
-def _nonneg(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not (np.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
-    return v
-
-
-def _finite(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not np.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
-    return v
+_positive, _nonneg, _finite = _number("positive"), _number("nonneg"), _number("finite")
 
 
 def cmd_vehicles(args) -> int:
