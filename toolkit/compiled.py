@@ -106,7 +106,8 @@ def compiler() -> str | None:
     return None
 
 
-def _compile(funcs: list, key: str) -> Path | None:
+def compile_library(funcs: list, key: str) -> Path | None:
+    """Generate C for casadi ``funcs``, compile to a cached shared library; None without a compiler."""
     cc = compiler()
     if cc is None:
         return None
@@ -189,7 +190,7 @@ class CompiledPlant:
                             ["x0", "cmd", "w", "p"], ["X", "Y"])
         key = hashlib.sha256("|".join([CODE_VERSION, model.name, ",".join(names), repr(self.dt),
                                        str(self.n_sub), ca.__version__]).encode()).hexdigest()[:20]
-        lib = _compile([step, chunk], key) if compile else None
+        lib = compile_library([step, chunk], key) if compile else None
         self.symbolic_step, self._step_fn, self._chunk_fn = step, step, chunk
         if lib is not None:
             dll = ctypes.CDLL(str(lib))

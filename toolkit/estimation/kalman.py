@@ -1,0 +1,183 @@
+"""The multi-rate Kalman filter step, written once for numpy and casadi.
+
+One call advances one IMU sample:
+
+1. rediscretise the model at the current speed with a 4th-order Taylor series of
+   ``e^(A dt)`` (no matrix exponential per step; truncation error below 1e-9 for
+   ``|A| dt < 0.05``, i.e. above ~1 m/s at 1 kHz) and predict;
+2. gyro update every sample (scalar, Joseph form);
+3. zero-yaw-rate pseudo-measurement at standstill (designs that have it);
+4. course update when a usable fix is present (>= 4 satellites, speed above
+   ``gps_min_speed``): innovation wrapped to (-pi, pi], noise from HDOP and 1/speed
+   (or constant), chi-square gate with recovery after ``max_rejects`` gated fixes,
+   optional latency compensation (the fix is compared with the course predicted
+   ``latency`` s earlier);
+5. seed 004's inter-sample residual prediction between fixes (``amrkf``).
+
+The filter state is one flat vector (``x``, ``P`` column-major, counters, the
+residual-prediction memory, the latency buffer) so the same step runs in a numpy
+loop or inside a compiled casadi ``mapaccum``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plants.backend import CASADI, NUMPY
+from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
+
+INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay")
+OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis")
+
+
+def layout(d: FilterDesign) -> dict:
+    """Offsets of the parts of the flat filter state."""
+    n, nb = d.n, d.latency_samples
+    off = {"x": 0, "P": n, "rejects": n + n * n, "eps": n + n * n + 1, "gain": n + n * n + 2}
+    off["buf"] = off["gain"] + n
+    off["size"] = off["buf"] + nb
+    return off
+
+
+def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) -> np.ndarray:
+    lay = layout(d)
+    z = np.zeros(lay["size"])
+    x = np.zeros(d.n)
+    x[d.index("yaw")] = yaw0
+    x[d.index("yaw_rate")] = yaw_rate0
+    z[:d.n] = x
+    z[lay["P"]:lay["P"] + d.n * d.n] = d.initial_covariance().ravel(order="F")
+    z[lay["buf"]:] = yaw0
+    return z
+
+
+def discretize(A, dt, o, n):
+    M = A * dt
+    M2 = M @ M
+    M3 = M2 @ M
+    M4 = M3 @ M
+    eye = o.eye(n)
+    F = eye + M + M2 / 2.0 + M3 / 6.0 + M4 / 24.0
+    Gam = (eye + M / 2.0 + M2 / 6.0 + M3 / 24.0 + M4 / 120.0) * dt
+    return F, Gam
+
+
+def _dot(a, b, o):
+    return (a.T @ b) if o is CASADI else a @ b
+
+
+def _col(v, o):
+    import casadi as ca
+    return ca.DM(v) if o is CASADI else np.asarray(v, float)
+
+
+def scalar_update(x, P, h, innov, r, o, n):
+    """Joseph-form scalar measurement update; returns (x, P, S, K)."""
+    Ph = P @ h
+    S = _dot(h, Ph, o) + r
+    K = Ph / S
+    IKH = o.eye(n) - o.outer(K, h)
+    P = IKH @ P @ IKH.T + o.outer(K, K) * r
+    return x + K * innov, P, S, K
+
+
+def wrap(a, o):
+    return o.arctan2(o.sin(a), o.cos(a))
+
+
+def step(d: FilterDesign, z, u, o=NUMPY):
+    """One sample of the filter: ``(z, u) -> (z_next, y)`` with ``u`` per :data:`INPUTS`."""
+    n, lay, nz = d.n, layout(d), d.noise
+    x = z[0:n]
+    P = o.reshape(z[lay["P"]:lay["P"] + n * n], n, n)
+    rejects, eps = z[lay["rejects"]], z[lay["eps"]]
+    gain = z[lay["gain"]:lay["gain"] + n]
+    dt, v, steer, nzm, gyro, fix, course, hdop, sats = (u[i] for i in range(9))
+    ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
+
+    # 1. predict with the model rediscretised at this speed
+    dyn = v >= nz.min_speed
+    v_m = o.fmax(v, nz.min_speed)
+    A_dyn, B_dyn = continuous_model(d, v_m, o, dynamic=True)
+    A_hold, B_hold = continuous_model(d, v_m, o, dynamic=False)
+    A = o.if_else(dyn, A_dyn, A_hold)
+    B = o.if_else(dyn, B_dyn, B_hold)
+    F, Gam = discretize(A, dt, o, n)
+    uin = o.stack([steer, nzm])
+    x = F @ x + Gam @ (B @ uin)
+    q = _col(process_noise_diag(d), o)
+    P = F @ P @ F.T + _diag(q * dt, o, n)
+
+    # 2. gyro, every sample
+    hg = _col(gyro_row(d), o)
+    x, P, _, _ = scalar_update(x, P, hg, gyro - _dot(hg, x, o), nz.gyro_std**2, o, n)
+
+    # 3. standstill: the yaw rate is zero
+    if d.standstill_update:
+        hs = _col(np.eye(n)[ir], o)
+        xs, Ps, _, _ = scalar_update(x, P, hs, 0.0 - x[ir], nz.standstill_std**2, o, n)
+        still = v < nz.standstill_speed
+        x, P = o.if_else(still, xs, x), o.if_else(still, Ps, P)
+
+    # 4. course fix
+    hc = o.zeros(n)
+    hc[ib] = 1.0
+    hc[iy] = 1.0
+    if d.antenna_x:
+        hc[ir] = d.antenna_x / v_m
+    pred_now = _dot(hc, x, o)
+    nb = d.latency_samples
+    if nb > 0:
+        buf = z[lay["buf"]:lay["buf"] + nb]
+        pred = buf[nb - 1]
+    else:
+        pred = pred_now
+    innov = wrap(course - pred, o)
+    if d.hdop_noise:
+        sd = o.fmax(nz.gps_velocity_std * hdop / o.fmax(v, nz.gps_min_speed), nz.course_std_min)
+        r_c = sd * sd
+    else:
+        r_c = nz.course_std**2
+    xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
+    nis = innov * innov / S
+    usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
+    if d.gating:
+        accept = usable * o.if_else(nis < nz.gate, 1.0, o.if_else(rejects >= nz.max_rejects, 1.0, 0.0))
+        rejects = o.if_else(accept > 0.5, 0.0, o.if_else(usable > 0.5, rejects + 1.0, rejects))
+    else:
+        accept = usable
+    acc = accept > 0.5
+    x, P = o.if_else(acc, xc, x), o.if_else(acc, Pc, P)
+
+    # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
+    if d.residual_prediction:
+        # q = h A_d (I - L h) h^+ with the gain of the last fix; h^+ = h^T / (h h^T)
+        qd = _dot(hc, F @ (hc / _dot(hc, hc, o) - gain), o)
+        eps_next = o.if_else(acc, innov, qd * eps)
+        gain_next = o.if_else(acc, K, gain)
+        x = o.if_else(acc, x, x + gain * (qd * eps))
+        eps, gain = eps_next, gain_next
+
+    if nb > 0:
+        buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
+    parts = [x, o.flatten(P), o.stack([rejects, eps]), gain]
+    if nb > 0:
+        parts.append(buf_next)
+    z_next = o.concat(parts)
+    nan = float("nan")
+    zero = 0.0 * v
+    y = o.stack([
+        x[ib], x[ir], x[iy], o.sqrt(o.fmax(P[ib, ib], 0.0)),
+        x[d.index("d1")] if "d1" in d.states else zero + nan,
+        x[d.index("d2")] if "d2" in d.states else zero + nan,
+        x[d.index("gyro_bias")] if d.bias else zero + nan,
+        accept, o.if_else(usable > 0.5, nis, nan),
+    ])
+    return z_next, y
+
+
+def _diag(q, o, n):
+    if o is CASADI:
+        import casadi as ca
+        return ca.diag(q)
+    return np.diag(q)

@@ -1,0 +1,149 @@
+"""Run a filter design over a whole log: compiled (casadi -> C), casadi VM, or numpy.
+
+The filter step of :mod:`toolkit.estimation.kalman` is traced once with casadi
+symbols, rolled out by ``mapaccum`` over chunks of samples and compiled to C; the
+time loop then runs inside one C call per chunk, on numpy buffers (no copies).
+Without a C compiler the same casadi function runs in casadi's virtual machine;
+``backend="numpy"`` runs the pure numpy step in a Python loop (the reference).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from plants.backend import CASADI, NUMPY
+
+from ..compiled import CFunction, compile_library
+from . import kalman, lob
+from .spec import FilterDesign
+
+CHUNK = 4000
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimator outputs over a run, named (see :data:`toolkit.estimation.kalman.OUTPUTS`)."""
+
+    t: np.ndarray
+    columns: dict
+    method: str
+    backend: str
+
+    def __getitem__(self, name):
+        return self.columns[name]
+
+
+def _step_function(d: FilterDesign):
+    if d.method == "lob":
+        size, nin = lob.STATE_SIZE, len(kalman.INPUTS)
+        z, u = ca.SX.sym("z", size), ca.SX.sym("u", nin)
+        zn, y = lob.step(d, z, u, CASADI)
+    else:
+        size = kalman.layout(d)["size"]
+        z, u = ca.SX.sym("z", size), ca.SX.sym("u", len(kalman.INPUTS))
+        zn, y = kalman.step(d, z, u, CASADI)
+    return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
+
+
+class CompiledFilter:
+    """A filter design ready to run fast; ``backend`` is ``c``, ``vm`` or ``numpy``."""
+
+    def __init__(self, d: FilterDesign, backend: str = "auto"):
+        self.design = d
+        self.step_fn = _step_function(d)
+        self.size = self.step_fn.size1_in(0)
+        acc = self.step_fn.mapaccum("est_acc", CHUNK)
+        z0, U = ca.MX.sym("z0", self.size), ca.MX.sym("U", len(kalman.INPUTS), CHUNK)
+        Z, Y = acc(z0, U)
+        self.chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
+        self.backend = "numpy" if backend == "numpy" else "vm"
+        if backend in ("auto", "c"):
+            key = hashlib.sha256(repr((d, ca.__version__, "est-1")).encode()).hexdigest()[:20]
+            lib = compile_library([self.chunk_fn], "est_" + key)
+            if lib is not None:
+                self._c = CFunction(ctypes.CDLL(str(lib)), "est_chunk", self.chunk_fn)
+                self.backend = "c"
+            elif backend == "c":
+                raise RuntimeError("no C compiler available for backend 'c'")
+
+    def run(self, U: np.ndarray, z0: np.ndarray) -> np.ndarray:
+        """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS))."""
+        n = U.shape[0]
+        ny = len(kalman.OUTPUTS)
+        if self.backend == "numpy":
+            step = (lob.step if self.design.method == "lob" else kalman.step)
+            Y = np.empty((n, ny))
+            z = z0.copy()
+            for k in range(n):
+                z, Y[k] = step(self.design, z, U[k], NUMPY)
+            return Y
+        n_pad = -(-n // CHUNK) * CHUNK
+        Up = np.empty((n_pad, U.shape[1]))
+        Up[:n] = U
+        Up[n:] = U[-1]
+        Up[n:, 5] = 0.0  # padded samples carry no fix
+        Y = np.empty((n_pad, ny))
+        z = np.array(z0, dtype=float)
+        if self.backend == "c":
+            zn = np.empty_like(z)
+            for s in range(0, n_pad, CHUNK):
+                self._c([z, Up.ctypes.data + s * Up.strides[0]], [zn, Y.ctypes.data + s * Y.strides[0]])
+                z, zn = zn, z
+        else:
+            for s in range(0, n_pad, CHUNK):
+                zs, ys = self.chunk_fn(z, Up[s:s + CHUNK].T)
+                z = np.array(zs).ravel()
+                Y[s:s + CHUNK] = np.array(ys).T
+        return Y[:n]
+
+
+@lru_cache(maxsize=64)
+def compiled_filter(d: FilterDesign, backend: str = "auto") -> CompiledFilter:
+    return CompiledFilter(d, backend)
+
+
+def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=None, gps_hdop=None, gps_sats=None,
+                        ay=None, dt0: float = 1e-3) -> np.ndarray:
+    """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable."""
+    n = len(t)
+    U = np.zeros((n, len(kalman.INPUTS)))
+    dt = np.empty(n)
+    dt[0] = dt0 if n < 2 else t[1] - t[0]
+    dt[1:] = np.diff(t)
+    fix = np.isfinite(gps_course)
+    U[:, 0], U[:, 1], U[:, 2] = dt, speed, steer
+    U[:, 3] = 0.0 if yaw_moment is None else np.nan_to_num(yaw_moment)
+    U[:, 4] = yaw_rate
+    U[:, 5] = fix
+    U[:, 6] = np.where(fix, gps_course, 0.0)
+    U[:, 7] = 1.0 if gps_hdop is None else np.where(np.isfinite(gps_hdop), gps_hdop, 1.0)
+    U[:, 8] = 99.0 if gps_sats is None else np.where(np.isfinite(gps_sats), gps_sats, 99.0)
+    U[:, 9] = 0.0 if ay is None else np.nan_to_num(ay)
+    return U
+
+
+def run_estimator(d: FilterDesign, log, backend: str = "auto") -> Estimate:
+    """Run design ``d`` over a drive log (:class:`toolkit.logio.DriveLog` or a mapping of columns).
+
+    ``*_true`` columns are never read.
+    """
+    cols = {k: np.asarray(v, float) for k, v in (log.columns.items() if hasattr(log, "columns") else log.items())
+            if not k.endswith("_true")}
+    get = cols.get
+    U = inputs_from_columns(cols["t"], cols["speed"], cols["steer"], cols["yaw_rate"], cols["gps_course"],
+                            yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
+                            ay=get("ay"), dt0=d.dt_nominal)
+    cf = compiled_filter(d, backend)
+    if d.method == "lob":
+        z0 = lob.initial_state(d)
+    else:
+        z0 = kalman.initial_state(d, 0.0, float(U[0, 4]))
+    Y = cf.run(U, z0)
+    out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}
+    return Estimate(cols["t"], out, d.method, cf.backend)

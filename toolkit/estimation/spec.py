@@ -1,0 +1,199 @@
+"""Filter designs: which states, which noise, which features, per method.
+
+A design is frozen configuration (scikit-learn style: construction stores, a
+separate call computes). :func:`design_filter` returns a :class:`FilterDesign`
+for a method name and a vehicle (the vehicle's *nominal* parameters, i.e. what a
+designer would believe, are used: see :meth:`plants.VehicleParams.as_nominal`).
+
+Methods
+-------
+``dakf-paper``
+    Seed 003 exactly: states (beta, r, psi, d1, d2); random-walk disturbances on
+    the beta and r equations (003 eq. 14-17); gyro every sample, course at fixes
+    (003 eq. 18-20); constant measurement noise. Not observable (rank 4 of 5).
+``dakf`` (default)
+    Observable and bias-aware: (beta, r, psi, d1, d2, b_g); disturbances are
+    first-order Gauss-Markov processes with correlation time ``disturbance_tau``
+    (they can no longer hold a sideslip offset against a heading offset forever),
+    a gyro-bias random walk, a zero-yaw-rate pseudo-measurement at standstill,
+    course noise from HDOP and 1/speed, fixes with < 4 satellites dropped, and
+    chi-square innovation gating.
+``amrkf``
+    ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29).
+``kf``
+    Three states (beta, r, psi), no disturbances, no bias (seed 001 / 003's "KF").
+``kf-bias``
+    ``kf`` plus a gyro-bias state.
+``lob``
+    Seed 003's linear observer on (beta, r) with yaw rate and lateral acceleration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from plants import VehicleParams
+from plants.errors import ModelError
+
+METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob")
+CHI2_1DOF_999 = 10.827566170662733
+"""99.9 % quantile of the chi-square distribution with one degree of freedom."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class NoiseSettings:
+    """Noise intensities and tuning knobs of a filter (SI units).
+
+    Process-noise intensities ``q_*`` are continuous-time spectral densities
+    (variance per second of the white noise driving each state's derivative); the
+    discrete covariance is ``q dt``. Measurement noises are standard deviations.
+    """
+
+    q_beta: float = 1e-4
+    """[rad^2/s^3 ... per unit of beta'] white noise on beta'."""
+    q_yaw_rate: float = 1e-2
+    q_yaw: float = 1e-8
+    q_d1: float = 2e-2
+    q_d2: float = 2.0
+    q_bias: float = 1e-8
+    disturbance_tau: float = 2.0
+    """Correlation time of the Gauss-Markov disturbances [s] (``dakf``, ``amrkf``)."""
+    gyro_std: float = 0.004
+    """Gyro white-noise standard deviation per sample [rad/s]."""
+    course_std: float = np.deg2rad(0.15)
+    """Course standard deviation [rad] when HDOP scaling is off (``dakf-paper``, ``kf``)."""
+    gps_velocity_std: float = 0.05
+    """Horizontal velocity noise per axis at HDOP 1 [m/s]; course std = this * HDOP / speed."""
+    course_std_min: float = np.deg2rad(0.05)
+    standstill_speed: float = 0.2
+    """Below this speed [m/s] the car is standing: yaw rate is zero (pseudo-measurement)."""
+    standstill_std: float = 1e-3
+    min_speed: float = 2.0
+    """Below this speed [m/s] the lateral model is held (beta, r, d frozen; psi from the gyro)."""
+    gps_min_speed: float = 1.0
+    """Course fixes below this ground speed [m/s] are not used."""
+    gate: float = CHI2_1DOF_999
+    max_rejects: int = 10
+    """After this many consecutive gated fixes the next one is accepted (recovery)."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ModelError(f"noise setting '{f.name}' must be a finite number >= 0, got {v!r}")
+        if self.disturbance_tau <= 0:
+            raise ModelError(f"noise setting 'disturbance_tau' must be > 0 s, got {self.disturbance_tau!r}")
+
+
+@dataclass(frozen=True)
+class FilterDesign:
+    """A frozen filter design: method, states, nominal vehicle, noise and features."""
+
+    method: str
+    states: tuple[str, ...]
+    params: VehicleParams
+    noise: NoiseSettings
+    disturbance: str | None  # None, "random-walk" or "gauss-markov"
+    bias: bool
+    gating: bool
+    hdop_noise: bool
+    standstill_update: bool
+    residual_prediction: bool
+    latency: float = 0.0
+    antenna_x: float = 0.0
+    dt_nominal: float = 1e-3
+
+    @property
+    def n(self) -> int:
+        return len(self.states)
+
+    def index(self, name: str) -> int:
+        return self.states.index(name)
+
+    @property
+    def latency_samples(self) -> int:
+        return int(round(self.latency / self.dt_nominal))
+
+    def initial_covariance(self) -> np.ndarray:
+        sd = {"beta": np.deg2rad(2.0), "yaw_rate": 0.05, "yaw": np.pi, "d1": 0.05, "d2": 0.5, "gyro_bias": 0.01}
+        return np.diag([sd[s] ** 2 for s in self.states])
+
+
+def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
+                  latency: float = 0.0, antenna_x: float = 0.0, dt: float = 1e-3,
+                  nominal: bool = True) -> FilterDesign:
+    """Design a filter for ``params`` (its nominal version unless ``nominal=False``)."""
+    if method not in METHODS:
+        raise ModelError(f"unknown estimation method '{method}'; known: {', '.join(METHODS)}")
+    if not (np.isfinite(latency) and 0 <= latency <= 0.5):
+        raise ModelError(f"GPS latency must be between 0 and 0.5 s, got {latency!r}")
+    p = params.as_nominal() if nominal else params
+    noise = noise or NoiseSettings()
+    lat = ("beta", "yaw_rate", "yaw")
+    if method == "dakf-paper":
+        return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
+                            False, latency, antenna_x, dt)
+    if method in ("dakf", "amrkf"):
+        return FilterDesign(method, lat + ("d1", "d2", "gyro_bias"), p, noise, "gauss-markov", True, True, True,
+                            True, method == "amrkf", latency, antenna_x, dt)
+    if method == "kf":
+        return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
+    if method == "kf-bias":
+        return FilterDesign(method, lat + ("gyro_bias",), p, noise, None, True, False, False, True, False,
+                            latency, antenna_x, dt)
+    return FilterDesign("lob", ("beta", "yaw_rate"), p, noise, None, False, False, False, False, False,
+                        0.0, 0.0, dt)
+
+
+def lateral_coefficients(p: VehicleParams, v):
+    """a11, a12, a21, a22, b11, b21, b22 of the bicycle model at speed ``v`` (works on symbols)."""
+    m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
+    cf, cr = p.cornering_stiffness_front, p.cornering_stiffness_rear
+    a11 = -2.0 * (cf + cr) / (m * v)
+    a12 = -1.0 - 2.0 * (cf * lf - cr * lr) / (m * v * v)
+    a21 = -2.0 * (cf * lf - cr * lr) / iz
+    a22 = -2.0 * (cf * lf * lf + cr * lr * lr) / (iz * v)
+    return a11, a12, a21, a22, 2.0 * cf / (m * v), 2.0 * cf * lf / iz, 1.0 / iz
+
+
+def continuous_model(d: FilterDesign, v, ops, dynamic=True):
+    """Continuous ``A`` (n x n) and ``B`` (n x 2, inputs steer and N_z) at speed ``v``.
+
+    With ``dynamic`` False (below ``min_speed``) the lateral model is held: only
+    ``psi' = r`` remains.
+    """
+    n = d.n
+    A = ops.zeros(n, n)
+    B = ops.zeros(n, 2)
+    ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
+    A[iy, ir] = 1.0
+    if not dynamic:
+        return A, B
+    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
+    A[ib, ib], A[ib, ir], A[ir, ib], A[ir, ir] = a11, a12, a21, a22
+    B[ib, 0], B[ir, 0], B[ir, 1] = b11, b21, b22
+    if d.disturbance is not None:
+        i1, i2 = d.index("d1"), d.index("d2")
+        A[ib, i1] = 1.0
+        A[ir, i2] = 1.0
+        if d.disturbance == "gauss-markov":
+            A[i1, i1] = -1.0 / d.noise.disturbance_tau
+            A[i2, i2] = -1.0 / d.noise.disturbance_tau
+    return A, B
+
+
+def process_noise_diag(d: FilterDesign) -> np.ndarray:
+    q = {"beta": d.noise.q_beta, "yaw_rate": d.noise.q_yaw_rate, "yaw": d.noise.q_yaw, "d1": d.noise.q_d1,
+         "d2": d.noise.q_d2, "gyro_bias": d.noise.q_bias}
+    return np.array([q[s] for s in d.states])
+
+
+def gyro_row(d: FilterDesign) -> np.ndarray:
+    h = np.zeros(d.n)
+    h[d.index("yaw_rate")] = 1.0
+    if d.bias:
+        h[d.index("gyro_bias")] = 1.0
+    return h
