@@ -1,0 +1,129 @@
+"""Estimator analysis as data: observability, steady-state and periodic Kalman gains.
+
+* :func:`observability` — rank and smallest singular value of the observability
+  matrix of ``(A, C)`` with both measurements (gyro, course), and the unobservable
+  directions named by state.
+* :func:`discrete_model` — the exact matrices the filter step uses at one speed
+  (same Taylor discretisation, ``Q_d = Q dt``).
+* :func:`steady_state_gain` — single rate (course every sample): the DARE solution
+  (scipy), in measurement-update form ``K = P C^T (C P C^T + R)^-1``.
+* :func:`periodic_gains` — multi-rate (gyro every sample, course every ``r``
+  samples): the periodic Riccati solution over one GPS period, found by iterating
+  the joint-update Riccati map to its fixed point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from plants.backend import NUMPY
+from .kalman import discretize
+from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
+
+
+@dataclass(frozen=True)
+class Observability:
+    """Observability of a filter design at one speed."""
+
+    states: tuple[str, ...]
+    rank: int
+    smallest_singular_value: float
+    """Smallest over largest singular value of the column-normalised observability matrix."""
+    unobservable: tuple[dict, ...]
+    """Unobservable directions in state units, each {state name: component}, first component 1."""
+
+    @property
+    def observable(self) -> bool:
+        return self.rank == len(self.states)
+
+
+def measurement_rows(d: FilterDesign, v: float) -> np.ndarray:
+    hc = np.zeros(d.n)
+    hc[d.index("beta")] = 1.0
+    hc[d.index("yaw")] = 1.0
+    if d.antenna_x:
+        hc[d.index("yaw_rate")] = d.antenna_x / v
+    return np.vstack([gyro_row(d), hc])
+
+
+def observability(d: FilterDesign, v: float, rtol: float = 1e-9) -> Observability:
+    """Observability of ``d`` at speed ``v`` with gyro and course (continuous model)."""
+    A, _ = continuous_model(d, v, NUMPY)
+    C = measurement_rows(d, v)
+    n = d.n
+    blocks, M = [], C
+    for _ in range(n):
+        blocks.append(M)
+        M = M @ A
+    O = np.vstack(blocks)
+    norms = np.linalg.norm(O, axis=0)
+    O = O / norms  # column scaling: the states' units do not matter
+    _, s, vt = np.linalg.svd(O)
+    tol = rtol * s[0]
+    rank = int(np.sum(s > tol))
+    dirs = []
+    for k in range(rank, n):
+        vec = vt[k]
+        vec = vec / norms  # back to state units: O (D^-1 v) = 0 for the scaled null vector v
+        vec = vec / vec[np.argmax(np.abs(vec) > 1e-9 * np.abs(vec).max())]  # first component = 1
+        dirs.append({name: float(c) for name, c in zip(d.states, vec) if abs(c) > 1e-9 * np.abs(vec).max()})
+    return Observability(d.states, rank, float(s[-1] / s[0]), tuple(dirs))
+
+
+def discrete_model(d: FilterDesign, v: float, dt: float):
+    """(F, Qd, C, R) the filter uses at speed ``v``: Taylor-4 discretisation, Qd = Q dt."""
+    A, _ = continuous_model(d, v, NUMPY)
+    F, _ = discretize(A, dt, NUMPY, d.n)
+    Q = np.diag(process_noise_diag(d) * dt)
+    C = measurement_rows(d, v)
+    if d.hdop_noise:
+        sc = max(d.noise.gps_velocity_std / max(v, d.noise.gps_min_speed), d.noise.course_std_min)
+    else:
+        sc = d.noise.course_std
+    R = np.diag([d.noise.gyro_std**2, sc**2])
+    return F, Q, C, R
+
+
+def steady_state_gain(d: FilterDesign, v: float, dt: float = 1e-3):
+    """Single-rate steady state: a-priori covariance from the DARE, gain ``K`` (update form)."""
+    F, Q, C, R = discrete_model(d, v, dt)
+    P = scipy.linalg.solve_discrete_are(F.T, C.T, Q, R)
+    K = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    return K, P
+
+
+def _update(P, C, R):
+    S = C @ P @ C.T + R
+    K = P @ C.T @ np.linalg.inv(S)
+    return K, P - K @ S @ K.T
+
+
+def periodic_gains(d: FilterDesign, v: float, gps_rate: float = 5.0, dt: float = 1e-3, tol: float = 1e-11,
+                   max_periods: int = 20000):
+    """Periodic steady state over one GPS period of ``r = round(1 / (gps_rate dt))`` samples.
+
+    Sample 0 of the period has gyro and course, samples 1..r-1 the gyro only.
+    Returns (gains, posteriors): lists of length r with the update gain and the
+    a-posteriori covariance at each sample of the period.
+    """
+    F, Q, C, R = discrete_model(d, v, dt)
+    r = int(round(1.0 / (gps_rate * dt)))
+    # warm start: single-rate DARE with the course information spread over the period
+    P = scipy.linalg.solve_discrete_are(F.T, C.T, Q, np.diag([R[0, 0], R[1, 1] * r]))
+    for _ in range(max_periods):
+        P_start = P
+        gains, posts = [], []
+        for k in range(r):
+            P = F @ P @ F.T + Q
+            if k == 0:
+                K, P = _update(P, C, R)
+            else:
+                K, P = _update(P, C[:1], R[:1, :1])
+            gains.append(K)
+            posts.append(P)
+        if np.max(np.abs(P - P_start)) <= tol * np.max(np.abs(P)):
+            return gains, posts
+    raise RuntimeError(f"periodic Riccati iteration did not converge in {max_periods} periods")
