@@ -93,6 +93,16 @@ def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
     return step, names
 
 
+def source_digest(*modules) -> str:
+    """Digest of the source files of ``modules``: part of every compiled-cache key, so a code
+    change can never reuse a stale library."""
+    import inspect
+    h = hashlib.sha256()
+    for m in modules:
+        h.update(inspect.getsource(m).encode())
+    return h.hexdigest()[:16]
+
+
 def _cache_dir() -> Path:
     root = os.environ.get("EVSTAB_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "evstab")
     return Path(root)
@@ -188,8 +198,12 @@ class CompiledPlant:
         # The parameter vector is passed once per chunk and repeated inside.
         chunk = ca.Function("rollout", mx, acc(mx[0], mx[1], mx[2], ca.repmat(mx[3], 1, CHUNK)),
                             ["x0", "cmd", "w", "p"], ["X", "Y"])
+        import plants.backend
+        import plants.tires
+        import sys as _sys
+        src = source_digest(_sys.modules[model.f.__module__], plants.backend, plants.tires, _sys.modules[__name__])
         key = hashlib.sha256("|".join([CODE_VERSION, model.name, ",".join(names), repr(self.dt),
-                                       str(self.n_sub), ca.__version__]).encode()).hexdigest()[:20]
+                                       str(self.n_sub), ca.__version__, src]).encode()).hexdigest()[:20]
         lib = compile_library([step, chunk], key) if compile else None
         self.symbolic_step, self._step_fn, self._chunk_fn = step, step, chunk
         if lib is not None:

@@ -83,11 +83,18 @@ def write_log_csv(path: str | Path, columns: dict) -> None:
     missing = [c for c in REQUIRED if c not in columns]
     if missing:
         raise LogFormatError(f"{path}: cannot write a drive log without column(s) {', '.join(missing)}")
-    order = [c for c, _, _ in SCHEMA if c in columns] + [c for c in columns if c not in dict((s[0], 1) for s in SCHEMA)]
-    data = np.column_stack([np.asarray(columns[c], float) for c in order])
+    schema = [c for c, _, _ in SCHEMA]
+    order = [c for c in schema if c in columns] + [c for c in columns if c not in schema]
+    write_log_table(path, {c: columns[c] for c in order})
+
+
+def write_log_table(path: str | Path, columns: dict) -> None:
+    """Write any table of float columns as CSV (NaN as empty), atomically, in the given order."""
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[c], float) for c in names])
 
     def write(fh):
-        fh.write(",".join(order) + "\n")
+        fh.write(",".join(names) + "\n")
         buf = io.StringIO()
         np.savetxt(buf, data, fmt="%.12g", delimiter=",")
         fh.write(buf.getvalue().replace("nan", ""))
@@ -105,14 +112,58 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
         v = float(s)
     except ValueError:
         raise LogFormatError(f"{source}: row {row}, column '{col}': '{s[:40]}' is not a number") from None
-    if not math.isfinite(v) and not allow_empty:
+    if math.isinf(v):
         raise LogFormatError(f"{source}: row {row}, column '{col}': {s} is not finite")
+    if math.isnan(v) and not allow_empty:
+        raise LogFormatError(f"{source}: row {row}, column '{col}': NaN, expected a finite number")
     return v
 
 
 def read_log_csv(path: str | Path) -> DriveLog:
-    """Read and validate a drive-log CSV (see the module docstring for the errors)."""
-    path = Path(path)
+    """Read and validate a drive-log CSV (see the module docstring for the errors).
+
+    A fast path (pandas' C parser) reads well-formed files; anything it does not
+    accept cleanly is re-read by the strict row-by-row parser, whose error names
+    the row and column.
+    """
+    fast = _read_fast(Path(path))
+    if fast is not None:
+        return fast
+    return _read_strict(Path(path))
+
+
+_NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
+
+
+def _read_fast(path: Path) -> DriveLog | None:
+    import pandas as pd
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(3)
+        if head == b"\xef\xbb\xbf":
+            return None  # let the strict reader handle the BOM
+        df = pd.read_csv(path, dtype=np.float64, engine="c")
+    except Exception:  # any parsing problem: the strict reader explains it
+        return None
+    cols = list(df.columns)
+    if len(set(cols)) != len(cols) or any(str(c).startswith("Unnamed") or "." in str(c) for c in cols):
+        return None
+    if any(c not in cols for c in REQUIRED) or len(df) == 0:
+        return None
+    columns = {str(c): df[c].to_numpy(dtype=float, copy=True) for c in cols}
+    for c in _NEVER_EMPTY:
+        if not np.all(np.isfinite(columns[c])):
+            return None
+    known = {c for c, _, _ in SCHEMA} | set(TRUTH_COLUMNS)
+    for c in known & set(columns):
+        if np.any(np.isinf(columns[c])):
+            return None
+    if np.any(np.diff(columns["t"]) <= 0):
+        return None
+    return DriveLog(columns, str(path))
+
+
+def _read_strict(path: Path) -> DriveLog:
     source = str(path)
     try:
         raw = path.read_bytes()

@@ -65,3 +65,24 @@ def test_console_script_runs(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "compact-ev bicycle step-steer" in r.stdout
+
+
+def test_estimate_writes_method_columns(tmp_path):
+    log, est = tmp_path / "log.csv", tmp_path / "est.csv"
+    assert main(["simulate", "--vehicle", "micro-ev", "--maneuver", "sine-lane-change", "--speed", "25",
+                 "--out", str(log)]) == 0
+    assert main(["estimate", str(log), "--vehicle", "micro-ev", "--out", str(est)]) == 0
+    header = est.read_text().splitlines()[0].split(",")
+    assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis"]
+    assert main(["estimate", str(log), "--vehicle", "micro-ev", "--method", "kf", "--out", str(est)]) == 0
+    assert est.read_text().splitlines()[0] == "t,beta,yaw_rate,yaw,beta_std,gps_used,nis"
+
+
+def test_estimate_bad_log_exit_2_names_row_and_column(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,speed,steer,yaw_rate,gps_course\n0,10,0,0,\n0.001,10,abc,0,\n")
+    out = tmp_path / "est.csv"
+    assert main(["estimate", str(bad), "--vehicle", "micro-ev", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "row 3" in err and "'steer'" in err and "'abc' is not a number" in err
+    assert not out.exists() and not list(tmp_path.glob("*.part"))

@@ -11,7 +11,7 @@ One call advances one IMU sample:
    ``gps_min_speed``): innovation wrapped to (-pi, pi], noise from HDOP and 1/speed
    (or constant), chi-square gate with recovery after ``max_rejects`` gated fixes,
    optional latency compensation (the fix is compared with the course predicted
-   ``latency`` s earlier);
+   ``latency`` s earlier); the first usable fix initialises the heading;
 5. seed 004's inter-sample residual prediction between fixes (``amrkf``).
 
 The filter state is one flat vector (``x``, ``P`` column-major, counters, the
@@ -33,7 +33,8 @@ OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_
 def layout(d: FilterDesign) -> dict:
     """Offsets of the parts of the flat filter state."""
     n, nb = d.n, d.latency_samples
-    off = {"x": 0, "P": n, "rejects": n + n * n, "eps": n + n * n + 1, "gain": n + n * n + 2}
+    off = {"x": 0, "P": n, "rejects": n + n * n, "eps": n + n * n + 1, "init": n + n * n + 2,
+           "gain": n + n * n + 3}
     off["buf"] = off["gain"] + n
     off["size"] = off["buf"] + nb
     return off
@@ -90,7 +91,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     n, lay, nz = d.n, layout(d), d.noise
     x = z[0:n]
     P = o.reshape(z[lay["P"]:lay["P"] + n * n], n, n)
-    rejects, eps = z[lay["rejects"]], z[lay["eps"]]
+    rejects, eps, init = z[lay["rejects"]], z[lay["eps"]], z[lay["init"]]
     gain = z[lay["gain"]:lay["gain"] + n]
     dt, v, steer, nzm, gyro, fix, course, hdop, sats = (u[i] for i in range(9))
     ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
@@ -106,6 +107,12 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     uin = o.stack([steer, nzm])
     x = F @ x + Gam @ (B @ uin)
     q = _col(process_noise_diag(d), o)
+    if d.disturbance is not None:
+        excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
+        mask = np.zeros(n)
+        for s in ("d1", "d2"):
+            mask[d.index(s)] = 1.0
+        q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
     P = F @ P @ F.T + _diag(q * dt, o, n)
 
     # 2. gyro, every sample
@@ -147,7 +154,16 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     else:
         accept = usable
     acc = accept > 0.5
+    # the first usable fix initialises the heading: yaw takes the whole innovation, its
+    # variance becomes the fix's (no part of a possibly huge heading error reaches beta)
+    first = (usable > 0.5) * (init < 0.5)
+    ey = _col(np.eye(n)[iy], o)
+    x_first = x + ey * innov
+    keep = _col(1.0 - np.eye(n)[iy], o)
+    P_first = P * o.outer(keep, keep) + o.outer(ey, ey) * r_c
     x, P = o.if_else(acc, xc, x), o.if_else(acc, Pc, P)
+    x, P = o.if_else(first > 0.5, x_first, x), o.if_else(first > 0.5, P_first, P)
+    init = o.fmax(init, usable)
 
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
@@ -160,7 +176,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
 
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
-    parts = [x, o.flatten(P), o.stack([rejects, eps]), gain]
+    parts = [x, o.flatten(P), o.stack([rejects, eps, init]), gain]
     if nb > 0:
         parts.append(buf_next)
     z_next = o.concat(parts)
@@ -171,7 +187,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
         x[d.index("d1")] if "d1" in d.states else zero + nan,
         x[d.index("d2")] if "d2" in d.states else zero + nan,
         x[d.index("gyro_bias")] if d.bias else zero + nan,
-        accept, o.if_else(usable > 0.5, nis, nan),
+        o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
     ])
     return z_next, y
 

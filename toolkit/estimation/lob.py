@@ -28,11 +28,11 @@ def gains(d: FilterDesign, v, o=NUMPY):
     """Observer gain L (2x2 as nested tuples) and the model terms at speed ``v``."""
     a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
     lam = a11 + a22
-    # (A - A_des) and C^-1 for C = [[0, 1], [c21, c22]]: C^-1 = [[-c22, 1], [c21, 0]] / (-c21)
+    # (A - A_des) and C^-1 for C = [[0, 1], [c21, c22]]: C^-1 = [[c22, -1], [-c21, 0]] / det, det = -c21
     c21, c22 = v * a11, v * (a12 + 1.0)
     m = ((a11 - lam, a12), (a21, a22 - lam))
     det = -c21
-    ci = ((-c22 / det, 1.0 / det), (c21 / det, 0.0))
+    ci = ((c22 / det, -1.0 / det), (-c21 / det, 0.0))
     L = tuple(tuple(m[i][0] * ci[0][j] + m[i][1] * ci[1][j] for j in range(2)) for i in range(2))
     return L, (a11, a12, a21, a22, b11, b21, b22), (c21, c22)
 
@@ -54,5 +54,5 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     yaw_n = yaw + dt * gyro
     nan = float("nan")
     zero = 0.0 * v
-    y = o.stack([beta_n, r_n, yaw_n, zero + nan, zero + nan, zero + nan, zero + nan, zero, zero + nan])
+    y = o.stack([beta_n, r_n, yaw_n, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan])
     return o.stack([beta_n, r_n, yaw_n]), y

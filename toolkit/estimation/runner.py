@@ -19,7 +19,7 @@ import numpy as np
 
 from plants.backend import CASADI, NUMPY
 
-from ..compiled import CFunction, compile_library
+from ..compiled import CFunction, compile_library, source_digest
 from . import kalman, lob
 from .spec import FilterDesign
 
@@ -64,7 +64,10 @@ class CompiledFilter:
         self.chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
         self.backend = "numpy" if backend == "numpy" else "vm"
         if backend in ("auto", "c"):
-            key = hashlib.sha256(repr((d, ca.__version__, "est-1")).encode()).hexdigest()[:20]
+            import plants.backend
+            from . import spec
+            src = source_digest(kalman, lob, spec, plants.backend)
+            key = hashlib.sha256(repr((d, ca.__version__, src)).encode()).hexdigest()[:20]
             lib = compile_library([self.chunk_fn], "est_" + key)
             if lib is not None:
                 self._c = CFunction(ctypes.CDLL(str(lib)), "est_chunk", self.chunk_fn)

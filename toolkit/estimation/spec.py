@@ -52,20 +52,26 @@ class NoiseSettings:
     discrete covariance is ``q dt``. Measurement noises are standard deviations.
     """
 
-    q_beta: float = 1e-4
+    q_beta: float = 1.4e-5
     """[rad^2/s^3 ... per unit of beta'] white noise on beta'."""
-    q_yaw_rate: float = 1e-2
+    q_yaw_rate: float = 0.023
     q_yaw: float = 1e-8
-    q_d1: float = 2e-2
-    q_d2: float = 2.0
+    q_d1: float = 0.02
+    q_d2: float = 0.01
     q_bias: float = 1e-8
-    disturbance_tau: float = 2.0
+    excitation_floor: float = 1.0
+    """Disturbance process noise is scaled by ``floor + |r_gyro| / excitation_rate``: model
+    errors (stiffness) only act when the car turns, so in straight driving the disturbances
+    are held and sideslip is pinned by the model. 1.0 = no scaling below the rate."""
+    excitation_rate: float = 1e9
+    """Yaw rate [rad/s] at which the disturbance noise doubles the floor (large = off)."""
+    disturbance_tau: float = 10.0
     """Correlation time of the Gauss-Markov disturbances [s] (``dakf``, ``amrkf``)."""
     gyro_std: float = 0.004
     """Gyro white-noise standard deviation per sample [rad/s]."""
     course_std: float = np.deg2rad(0.15)
     """Course standard deviation [rad] when HDOP scaling is off (``dakf-paper``, ``kf``)."""
-    gps_velocity_std: float = 0.05
+    gps_velocity_std: float = 0.056
     """Horizontal velocity noise per axis at HDOP 1 [m/s]; course std = this * HDOP / speed."""
     course_std_min: float = np.deg2rad(0.05)
     standstill_speed: float = 0.2
