@@ -89,17 +89,18 @@ def write_log_csv(path: str | Path, columns: dict) -> None:
 
 
 def write_log_table(path: str | Path, columns: dict) -> None:
-    """Write any table of float columns as CSV (NaN as empty), atomically, in the given order."""
-    names = list(columns)
-    data = np.column_stack([np.asarray(columns[c], float) for c in names])
+    """Write a table of float columns as CSV (NaN as empty, shortest round-trip digits),
+    atomically, in the given order (pyarrow's CSV writer)."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    table = pa.table({c: pa.array(np.asarray(columns[c], float), from_pandas=True) for c in columns})
+    opts = pacsv.WriteOptions(include_header=False, quoting_style="none")
 
     def write(fh):
-        fh.write(",".join(names) + "\n")
-        buf = io.StringIO()
-        np.savetxt(buf, data, fmt="%.12g", delimiter=",")
-        fh.write(buf.getvalue().replace("nan", ""))
+        fh.write((",".join(columns) + "\n").encode())
+        pacsv.write_csv(table, fh, opts)
 
-    atomic_write(path, write)
+    atomic_write(path, write, mode="wb")
 
 
 def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> float:
@@ -122,7 +123,7 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
 def read_log_csv(path: str | Path) -> DriveLog:
     """Read and validate a drive-log CSV (see the module docstring for the errors).
 
-    A fast path (pandas' C parser) reads well-formed files; anything it does not
+    A fast path (pyarrow's CSV parser) reads well-formed files; anything it does not
     accept cleanly is re-read by the strict row-by-row parser, whose error names
     the row and column.
     """
@@ -136,21 +137,25 @@ _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
 
 
 def _read_fast(path: Path) -> DriveLog | None:
-    import pandas as pd
+    """pyarrow's multi-threaded CSV parser; None whenever the file is not plainly well formed."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
     try:
         with open(path, "rb") as fh:
-            head = fh.read(3)
-        if head == b"\xef\xbb\xbf":
-            return None  # let the strict reader handle the BOM
-        df = pd.read_csv(path, dtype=np.float64, engine="c")
-    except Exception:  # any parsing problem: the strict reader explains it
+            first = fh.readline()
+        if first.startswith(b"\xef\xbb\xbf") or not first.strip():
+            return None  # BOM or empty: the strict reader explains or handles it
+        names = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
+        if len(set(names)) != len(names) or any(not n for n in names) or any(c not in names for c in REQUIRED):
+            return None
+        table = pacsv.read_csv(
+            path, convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names},
+                                                       strings_can_be_null=True))
+    except Exception:  # any parsing problem: the strict reader names row and column
         return None
-    cols = list(df.columns)
-    if len(set(cols)) != len(cols) or any(str(c).startswith("Unnamed") or "." in str(c) for c in cols):
+    if table.num_rows == 0 or table.column_names != names:
         return None
-    if any(c not in cols for c in REQUIRED) or len(df) == 0:
-        return None
-    columns = {str(c): df[c].to_numpy(dtype=float, copy=True) for c in cols}
+    columns = {n: table.column(n).to_numpy(zero_copy_only=False).astype(float, copy=False) for n in names}
     for c in _NEVER_EMPTY:
         if not np.all(np.isfinite(columns[c])):
             return None

@@ -1,0 +1,39 @@
+"""Helpers shared by the study scripts: output folder, tables as CSV and Markdown, figures."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from toolkit.logio import atomic_write
+
+
+def out_dir(path) -> Path:
+    p = Path(path)
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def write_table(rows: list[dict], path_csv: Path, path_md: Path | None = None, floatfmt: str = "{:.3f}") -> None:
+    keys = list(rows[0])
+
+    def w_csv(fh):
+        wr = csv.DictWriter(fh, fieldnames=keys)
+        wr.writeheader()
+        wr.writerows(rows)
+
+    atomic_write(path_csv, w_csv)
+    if path_md is not None:
+        buf = io.StringIO()
+        buf.write("| " + " | ".join(keys) + " |\n|" + "---|" * len(keys) + "\n")
+        for r in rows:
+            cells = [floatfmt.format(v) if isinstance(v, float) else str(v) for v in r.values()]
+            buf.write("| " + " | ".join(cells) + " |\n")
+        atomic_write(path_md, lambda fh: fh.write(buf.getvalue()))
+
+
+def save_figure(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=110), mode="wb")
+    plt.close(fig)
