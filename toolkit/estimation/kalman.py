@@ -73,12 +73,17 @@ def _col(v, o):
 
 
 def scalar_update(x, P, h, innov, r, o, n):
-    """Joseph-form scalar measurement update; returns (x, P, S, K)."""
-    Ph = P @ h
-    S = _dot(h, Ph, o) + r
-    K = Ph / S
-    IKH = o.eye(n) - o.outer(K, h)
-    P = IKH @ P @ IKH.T + o.outer(K, K) * r
+    """Scalar measurement update in Joseph form; returns (x, P, S, K).
+
+    ``(I - K h) P (I - K h)^T + K r K^T`` is evaluated in its expanded, O(n^2) form
+    ``P - K m^T - m K^T + (h m + r) K K^T`` with ``m = P h^T``: the same expression for
+    any gain ``K`` (so it keeps the Joseph form's validity and exact symmetry) without
+    the two n x n x n products.
+    """
+    m = P @ h
+    S = _dot(h, m, o) + r
+    K = m / S
+    P = P - o.outer(K, m) - o.outer(m, K) + o.outer(K, K) * S
     return x + K * innov, P, S, K
 
 
@@ -86,8 +91,13 @@ def wrap(a, o):
     return o.arctan2(o.sin(a), o.cos(a))
 
 
-def step(d: FilterDesign, z, u, o=NUMPY):
-    """One sample of the filter: ``(z, u) -> (z_next, y)`` with ``u`` per :data:`INPUTS`."""
+def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
+    """One sample of the filter: ``(z, u) -> (z_next, y)`` with ``u`` per :data:`INPUTS`.
+
+    ``with_course=False`` leaves out the course-update code; it gives exactly the
+    result of the full step on a sample without a fix (``u[5] = 0``), so callers may
+    use it there to save the work (the compiled runner switches between the two).
+    """
     n, lay, nz = d.n, layout(d), d.noise
     x = z[0:n]
     P = o.reshape(z[lay["P"]:lay["P"] + n * n], n, n)
@@ -113,7 +123,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
         for s in ("d1", "d2"):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
-    P = F @ P @ F.T + _diag(q * dt, o, n)
+    P = _propagate(F, P, o, n) + _diag(q * dt, o, n)
 
     # 2. gyro, every sample
     hg = _col(gyro_row(d), o)
@@ -145,25 +155,30 @@ def step(d: FilterDesign, z, u, o=NUMPY):
         r_c = sd * sd
     else:
         r_c = nz.course_std**2
-    xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
-    nis = innov * innov / S
-    usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
-    if d.gating:
-        accept = usable * o.if_else(nis < nz.gate, 1.0, o.if_else(rejects >= nz.max_rejects, 1.0, 0.0))
-        rejects = o.if_else(accept > 0.5, 0.0, o.if_else(usable > 0.5, rejects + 1.0, rejects))
-    else:
-        accept = usable
-    acc = accept > 0.5
-    # the first usable fix initialises the heading: yaw takes the whole innovation, its
-    # variance becomes the fix's (no part of a possibly huge heading error reaches beta)
-    first = (usable > 0.5) * (init < 0.5)
-    ey = _col(np.eye(n)[iy], o)
-    x_first = x + ey * innov
-    keep = _col(1.0 - np.eye(n)[iy], o)
-    P_first = P * o.outer(keep, keep) + o.outer(ey, ey) * r_c
-    x, P = o.if_else(acc, xc, x), o.if_else(acc, Pc, P)
-    x, P = o.if_else(first > 0.5, x_first, x), o.if_else(first > 0.5, P_first, P)
-    init = o.fmax(init, usable)
+    if with_course:
+        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
+        nis = innov * innov / S
+        usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
+        if d.gating:
+            accept = usable * o.if_else(nis < nz.gate, 1.0, o.if_else(rejects >= nz.max_rejects, 1.0, 0.0))
+            rejects = o.if_else(accept > 0.5, 0.0, o.if_else(usable > 0.5, rejects + 1.0, rejects))
+        else:
+            accept = usable
+        acc = accept > 0.5
+        # the first usable fix initialises the heading: yaw takes the whole innovation, its
+        # variance becomes the fix's (no part of a possibly huge heading error reaches beta)
+        first = (usable > 0.5) * (init < 0.5)
+        ey = _col(np.eye(n)[iy], o)
+        x_first = x + ey * innov
+        keep = _col(1.0 - np.eye(n)[iy], o)
+        P_first = P * o.outer(keep, keep) + o.outer(ey, ey) * r_c
+        x, P = o.if_else(acc, xc, x), o.if_else(acc, Pc, P)
+        x, P = o.if_else(first > 0.5, x_first, x), o.if_else(first > 0.5, P_first, P)
+        init = o.fmax(init, usable)
+
+    else:  # no fix on this sample: nothing of the course update happens
+        acc, first, usable = False, 0.0 * v, 0.0 * v
+        accept, nis, K = 0.0 * v, 0.0 * v, gain
 
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
@@ -190,6 +205,22 @@ def step(d: FilterDesign, z, u, o=NUMPY):
         o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
     ])
     return z_next, y
+
+
+def _propagate(F, P, o, n):
+    """``F P F^T``. For casadi the upper triangle is built and mirrored, which halves the
+    second product in the generated code (numpy uses the plain product)."""
+    if o is not CASADI:
+        return F @ P @ F.T
+    import casadi as ca
+    M = F @ P
+    out = ca.SX.zeros(n, n)
+    for i in range(n):
+        for j in range(i, n):
+            e = ca.dot(M[i, :].T, F[j, :].T)
+            out[i, j] = e
+            out[j, i] = e
+    return out
 
 
 def _diag(q, o, n):

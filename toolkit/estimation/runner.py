@@ -40,14 +40,27 @@ class Estimate:
 
 
 def _step_function(d: FilterDesign):
+    """casadi ``est_step(z, u) -> (z_next, y)``.
+
+    For the Kalman designs the step switches (casadi ``conditional``, a real branch
+    in the generated C) between the full step and the step without the course
+    update, which is exact on the ~99.5 % of samples that carry no fix.
+    """
+    nin = len(kalman.INPUTS)
     if d.method == "lob":
-        size, nin = lob.STATE_SIZE, len(kalman.INPUTS)
-        z, u = ca.SX.sym("z", size), ca.SX.sym("u", nin)
+        z, u = ca.SX.sym("z", lob.STATE_SIZE), ca.SX.sym("u", nin)
         zn, y = lob.step(d, z, u, CASADI)
-    else:
-        size = kalman.layout(d)["size"]
-        z, u = ca.SX.sym("z", size), ca.SX.sym("u", len(kalman.INPUTS))
-        zn, y = kalman.step(d, z, u, CASADI)
+        return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
+    size = kalman.layout(d)["size"]
+    variants = []
+    for with_course in (False, True):
+        z, u = ca.SX.sym("z", size), ca.SX.sym("u", nin)
+        zn, y = kalman.step(d, z, u, CASADI, with_course=with_course)
+        variants.append(ca.Function("est_step_" + ("fix" if with_course else "nofix"), [z, u], [zn, y]))
+    switch = ca.Function.conditional("est_switch", [variants[0]], variants[1])
+    z, u = ca.MX.sym("z", size), ca.MX.sym("u", nin)
+    # index 0 -> no fix, anything else -> the default (full) step
+    zn, y = switch(ca.if_else(u[5] > 0.5, 1, 0), z, u)
     return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
 
 
@@ -80,11 +93,14 @@ class CompiledFilter:
         n = U.shape[0]
         ny = len(kalman.OUTPUTS)
         if self.backend == "numpy":
-            step = (lob.step if self.design.method == "lob" else kalman.step)
             Y = np.empty((n, ny))
             z = z0.copy()
+            d = self.design
             for k in range(n):
-                z, Y[k] = step(self.design, z, U[k], NUMPY)
+                if d.method == "lob":
+                    z, Y[k] = lob.step(d, z, U[k], NUMPY)
+                else:
+                    z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, 5] > 0.5))
             return Y
         n_pad = -(-n // CHUNK) * CHUNK
         Up = np.empty((n_pad, U.shape[1]))
