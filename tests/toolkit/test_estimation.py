@@ -259,3 +259,16 @@ def test_lob_poles_are_placed(v):
     C = np.array([[0.0, 1.0], [c21, c22]])
     poles = np.linalg.eigvals(A - np.array(L) @ C)
     np.testing.assert_allclose(poles, [a11 + a22] * 2, rtol=1e-9)  # both at tr(A) by construction
+
+
+def test_known_gps_latency_is_compensated():
+    # Fixes arrive 100 ms late; telling the filter the latency must reduce the sideslip error.
+    p = load_vehicle("compact-ev")
+    man = make_maneuver("sine-lane-change", p, 60 / 3.6, 5 * DEG)
+    log = simulate(p, "two-track", man, sensors=SensorConfig(gps_latency=0.1), seed=4).log_columns()
+    errs = {}
+    for lat in (0.0, 0.1):
+        d = design_filter("dakf", p, latency=lat)
+        e = run_estimator(d, log)
+        errs[lat] = np.sqrt(np.mean((e["beta"] - log["beta_true"])[2000:] ** 2))
+    assert errs[0.1] < 0.3 * errs[0.0]  # measured 0.106 vs 0.814 deg RMS (ratio 0.13)
