@@ -41,6 +41,11 @@ class Observability:
 
 
 def measurement_rows(d: FilterDesign, v: float) -> np.ndarray:
+    """Rows of the measurement matrix: gyro and course (for ``lob``: gyro and lateral acceleration)."""
+    if d.method == "lob":
+        from .spec import lateral_coefficients
+        a11, a12, *_ = lateral_coefficients(d.params, v)
+        return np.array([[0.0, 1.0], [v * a11, v * (a12 + 1.0)]])
     hc = np.zeros(d.n)
     hc[d.index("beta")] = 1.0
     hc[d.index("yaw")] = 1.0

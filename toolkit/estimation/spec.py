@@ -174,8 +174,9 @@ def continuous_model(d: FilterDesign, v, ops, dynamic=True):
     n = d.n
     A = ops.zeros(n, n)
     B = ops.zeros(n, 2)
-    ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
-    A[iy, ir] = 1.0
+    ib, ir = d.index("beta"), d.index("yaw_rate")
+    if "yaw" in d.states:
+        A[d.index("yaw"), ir] = 1.0
     if not dynamic:
         return A, B
     a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
