@@ -89,13 +89,8 @@ def matrices(p: VehicleParams, vx: float) -> ContinuousLTI:
     """
     if not vx > 0.0:
         raise ValueError(f"the linear bicycle model needs a positive speed, got vx = {vx!r} m/s")
-    m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
-    cf, cr = p.cornering_stiffness_front, p.cornering_stiffness_rear
-    a11 = -2.0 * (cf + cr) / (m * vx)
-    a12 = -1.0 - 2.0 * (cf * lf - cr * lr) / (m * vx**2)
-    a21 = -2.0 * (cf * lf - cr * lr) / iz
-    a22 = -2.0 * (cf * lf**2 + cr * lr**2) / (iz * vx)
-    b11, b21, b22 = 2.0 * cf / (m * vx), 2.0 * cf * lf / iz, 1.0 / iz
+    m, iz = p.mass, p.yaw_inertia
+    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vx)
     A = np.array([[a11, a12, 0.0], [a21, a22, 0.0], [0.0, 1.0, 0.0]])
     B = np.array([[b11, 0.0, 1.0 / (m * vx), 0.0],
                   [b21, b22, 0.0, 1.0 / iz],
@@ -107,6 +102,28 @@ def matrices(p: VehicleParams, vx: float) -> ContinuousLTI:
     return ContinuousLTI(A=A, B=B, C=C, D=D, states=("beta", "yaw_rate", "yaw"),
                          inputs=("steer", "yaw_moment", "lateral_force", "yaw_moment_dist"),
                          outputs=("beta", "yaw_rate", "yaw", "course", "ay"))
+
+
+def lateral_coefficients(p: VehicleParams, v):
+    """a11, a12, a21, a22, b11, b21, b22 of the lateral bicycle model at speed ``v``.
+
+    Seed 003 eq. 10-11 with 004 eq. 38's a11; written with plain arithmetic so it
+    works on numbers and on casadi symbols. (b12 = 0: the yaw moment does not act
+    on beta directly; b22 = 1 / I_z.)
+    """
+    m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
+    cf, cr = p.cornering_stiffness_front, p.cornering_stiffness_rear
+    a11 = -2.0 * (cf + cr) / (m * v)
+    a12 = -1.0 - 2.0 * (cf * lf - cr * lr) / (m * v * v)
+    a21 = -2.0 * (cf * lf - cr * lr) / iz
+    a22 = -2.0 * (cf * lf * lf + cr * lr * lr) / (iz * v)
+    return a11, a12, a21, a22, 2.0 * cf / (m * v), 2.0 * cf * lf / iz, 1.0 / iz
+
+
+def lateral_matrices(p: VehicleParams, v: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of ``(beta, r)' = A (beta, r) + B (delta_f, N_z)`` at speed ``v`` (seed 003 eq. 25)."""
+    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, v)
+    return np.array([[a11, a12], [a21, a22]]), np.array([[b11, 0.0], [b21, b22]])
 
 
 def steady_state_gains(p: VehicleParams, vx: float) -> tuple[float, float]:
@@ -121,4 +138,4 @@ def steady_state_gains(p: VehicleParams, vx: float) -> tuple[float, float]:
     return beta, vx / (L * den)
 
 
-__all__ = ["MODEL", "matrices", "steady_state_gains", "tire_forces", "TRUTH"]
+__all__ = ["MODEL", "lateral_coefficients", "lateral_matrices", "matrices", "steady_state_gains", "tire_forces", "TRUTH"]

@@ -114,7 +114,7 @@ def test_time_varying_filter_converges_to_periodic_gains():
         z, _ = step(d, z, u)
     # after 300 periods the last sample of the period matches the periodic solution's last posterior
     P = z[lay["P"]:lay["P"] + d.n ** 2].reshape(d.n, d.n, order="F")
-    np.testing.assert_allclose(P, posts[-1], rtol=1e-4, atol=1e-14)  # slow bias mode still settling at 1e-5
+    np.testing.assert_allclose(P, posts[-1], rtol=1e-8, atol=1e-16)  # measured 1e-11: different algorithms
 
 
 def test_same_as_filterpy():

@@ -116,29 +116,48 @@ def _update(P, C, R):
     return K, P - K @ S @ K.T
 
 
-def periodic_gains(d: FilterDesign, v: float, gps_rate: float = 5.0, dt: float = 1e-3, tol: float = 1e-11,
-                   max_periods: int = 20000):
+def periodic_gains(d: FilterDesign, v: float, gps_rate: float = 5.0, dt: float = 1e-3):
     """Periodic steady state over one GPS period of ``r = round(1 / (gps_rate dt))`` samples.
 
-    Sample 0 of the period has gyro and course, samples 1..r-1 the gyro only.
-    Returns (gains, posteriors): lists of length r with the update gain and the
-    a-posteriori covariance at each sample of the period.
+    Sample 0 of the period has gyro and course, samples 1..r-1 the gyro only. The
+    period is lifted: with ``x_j`` the state at the start of period ``j``,
+    ``x_{j+1} = F^r x_j + sum_i F^(r-1-i) w_i`` and the period's measurements stack to
+    ``Y_j = H_L x_j + G_L w + v``, whose noise is correlated with the lifted process
+    noise. The lifted periodic Riccati equation is then one DARE with a cross term
+    (scipy ``solve_discrete_are`` with ``s``); its solution is the a-priori
+    covariance at the start of the period, and one pass through the period gives
+    the gains. Returns (gains, posteriors), lists of length r.
     """
     F, Q, C, R = discrete_model(d, v, dt)
+    n = d.n
     r = int(round(1.0 / (gps_rate * dt)))
-    # warm start: single-rate DARE with the course information spread over the period
-    P = scipy.linalg.solve_discrete_are(F.T, C.T, Q, np.diag([R[0, 0], R[1, 1] * r]))
-    for _ in range(max_periods):
-        P_start = P
-        gains, posts = [], []
-        for k in range(r):
-            P = F @ P @ F.T + Q
-            if k == 0:
-                K, P = _update(P, C, R)
-            else:
-                K, P = _update(P, C[:1], R[:1, :1])
-            gains.append(K)
-            posts.append(P)
-        if np.max(np.abs(P - P_start)) <= tol * np.max(np.abs(P)):
-            return gains, posts
-    raise RuntimeError(f"periodic Riccati iteration did not converge in {max_periods} periods")
+    Fp = [np.eye(n)]
+    for _ in range(r):
+        Fp.append(F @ Fp[-1])
+    rows = [(C, R)] + [(C[:1], R[:1, :1])] * (r - 1)
+    m_tot = sum(h.shape[0] for h, _ in rows)
+    H_L = np.zeros((m_tot, n))
+    G_meas = np.zeros((m_tot, n * r))
+    R_L = np.zeros((m_tot, m_tot))
+    row = 0
+    for k, (h, rk) in enumerate(rows):
+        m = h.shape[0]
+        H_L[row:row + m] = h @ Fp[k]
+        for i in range(k):
+            G_meas[row:row + m, i * n:(i + 1) * n] = h @ Fp[k - 1 - i]
+        R_L[row:row + m, row:row + m] = rk
+        row += m
+    G_state = np.hstack([Fp[r - 1 - i] for i in range(r)])
+    Qw = np.kron(np.eye(r), Q)
+    Q_L = G_state @ Qw @ G_state.T
+    R_L = R_L + G_meas @ Qw @ G_meas.T
+    S_L = G_state @ Qw @ G_meas.T
+    P = scipy.linalg.solve_discrete_are(Fp[r].T, H_L.T, Q_L, R_L, s=S_L)
+    P = 0.5 * (P + P.T)
+    gains, posts = [], []
+    for k in range(r):
+        K, P_post = _update(P, *rows[k])
+        gains.append(K)
+        posts.append(P_post)
+        P = F @ P_post @ F.T + Q
+    return gains, posts

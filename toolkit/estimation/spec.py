@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plants import VehicleParams
+from plants.bicycle import lateral_coefficients
 from plants.errors import ModelError
 
 METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob")
@@ -152,17 +153,6 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
                             latency, antenna_x, dt)
     return FilterDesign("lob", ("beta", "yaw_rate"), p, noise, None, False, False, False, False, False,
                         0.0, 0.0, dt)
-
-
-def lateral_coefficients(p: VehicleParams, v):
-    """a11, a12, a21, a22, b11, b21, b22 of the bicycle model at speed ``v`` (works on symbols)."""
-    m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
-    cf, cr = p.cornering_stiffness_front, p.cornering_stiffness_rear
-    a11 = -2.0 * (cf + cr) / (m * v)
-    a12 = -1.0 - 2.0 * (cf * lf - cr * lr) / (m * v * v)
-    a21 = -2.0 * (cf * lf - cr * lr) / iz
-    a22 = -2.0 * (cf * lf * lf + cr * lr * lr) / (iz * v)
-    return a11, a12, a21, a22, 2.0 * cf / (m * v), 2.0 * cf * lf / iz, 1.0 / iz
 
 
 def continuous_model(d: FilterDesign, v, ops, dynamic=True):

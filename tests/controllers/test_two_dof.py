@@ -1,0 +1,134 @@
+"""The 2-DOF controller and its stability: closed forms of seed 003 and python-control cross-checks."""
+
+import dataclasses
+
+import control
+import numpy as np
+import pytest
+
+from controllers.actuators import allocate
+from controllers.reference import ReferenceModel
+from controllers.two_dof import TwoDofController, TwoDofDesign
+from plants import G, load_vehicle
+from plants.bicycle import lateral_matrices, steady_state_gains
+from toolkit.estimation import design_filter
+from toolkit.stability import _closed_loop_matrices, estimator_loop, nominal_loop
+from toolkit.estimation.analysis import periodic_gains
+
+
+@pytest.mark.parametrize("kb,kg", [(5.0, 5.0), (3.0, 8.0)])
+@pytest.mark.parametrize("v", [10.0, 25.0])
+def test_nominal_closed_loop_poles(vehicle, kb, kg, v):
+    d = TwoDofDesign(vehicle.as_nominal(), k_beta=kb, k_gamma=kg)
+    loop, st = nominal_loop(d, v)
+    A, _ = lateral_matrices(vehicle.as_nominal(), v)
+    expected = np.sort_complex(np.concatenate([[-kb, -kg], np.linalg.eigvals(A)]))
+    # (sI - A)(sI + Kd): the model-following poles plus the plant's, which the controller cancels
+    np.testing.assert_allclose(np.sort_complex(st.poles), expected, atol=1e-9)
+    assert st.stable
+    # reference -> output is K = diag(Kb/(s+Kb), Kg/(s+Kg)) (seed 003 eq. 31)
+    w = np.array([0.1, 1.0, 5.0, 30.0])
+    # frequency responses of the 4-state interconnection vs the closed forms: rounding only
+    resp = loop(1j * w)
+    i_yb, i_yr = loop.output_labels.index("y_beta"), loop.output_labels.index("y_r")
+    i_rb, i_rr = loop.input_labels.index("r_beta"), loop.input_labels.index("r_r")
+    np.testing.assert_allclose(resp[i_yb, i_rb], kb / (1j * w + kb), rtol=1e-9)
+    np.testing.assert_allclose(resp[i_yr, i_rr], kg / (1j * w + kg), rtol=1e-9)
+    assert np.abs(resp[i_yb, i_rr]).max() < 1e-9 and np.abs(resp[i_yr, i_rb]).max() < 1e-9  # decoupled
+
+
+def test_internal_instability_is_found_when_the_design_cancels_an_unstable_plant():
+    p = load_vehicle("compact-ev")
+    unstable = dataclasses.replace(p, cornering_stiffness_rear=0.3 * p.cornering_stiffness_rear)
+    A, _ = lateral_matrices(unstable, 20.0)
+    assert np.max(np.linalg.eigvals(A).real) > 0  # an oversteering car above its critical speed
+    loop, st = nominal_loop(TwoDofDesign(unstable), 20.0)
+    assert not st.stable
+    # ... although the reference-to-output map alone is stable: only internal stability shows it
+    assert np.all(control.tf(loop["y_beta", "r_beta"]).minreal(1e-6).poles().real < 0)
+
+
+def test_model_error_cases():
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p.as_nominal())
+    for f in (0.6, 1.0, 1.4):
+        true = dataclasses.replace(p, cornering_stiffness_front=f * p.cornering_stiffness_front,
+                                   cornering_stiffness_rear=f * p.cornering_stiffness_rear,
+                                   mass=p.mass * 1.2)
+        assert nominal_loop(d, 25.0, true)[1].stable
+
+
+def test_excessive_gain_is_unstable_in_the_sampled_loop():
+    p = load_vehicle("compact-ev")
+    est = design_filter("dakf", p)
+    assert estimator_loop(TwoDofDesign(p.as_nominal()), est, 20.0, gps_rate=5.0)[1].stable
+    # K dt = 4 > 2: the sampled proportional path overshoots every sample
+    assert not estimator_loop(TwoDofDesign(p.as_nominal(), k_beta=4000, k_gamma=4000), est, 20.0,
+                              gps_rate=5.0)[1].stable
+
+
+@pytest.mark.parametrize("unstable", [False, True])
+def test_lifted_multirate_analysis_agrees_with_long_simulation(unstable):
+    p = load_vehicle("compact-ev")
+    plant = dataclasses.replace(p, cornering_stiffness_rear=0.3 * p.cornering_stiffness_rear) if unstable else p
+    d = TwoDofDesign(plant.as_nominal())
+    est = design_filter("kf-bias", p)
+    _, st = estimator_loop(d, est, 20.0, true_params=plant, gps_rate=5.0)
+    rho = np.max(np.abs(st.poles))
+    gains, _ = periodic_gains(est, 20.0, 5.0, 1e-3)
+    mats = _closed_loop_matrices(d, est, plant, 20.0, gains, 1e-3)
+    z = np.random.default_rng(0).standard_normal(mats[0].shape[0])
+    norms = []
+    for _ in range(3000):
+        for M in mats:
+            z = M @ z
+        norms.append(np.linalg.norm(z))
+        z = z / norms[-1]
+    # the average growth per period of a long simulation, (|z_N| / |z_0|)^(1/N), tends to the
+    # spectral radius of the monodromy; the dominant pair is complex (the norm oscillates with
+    # a period of ~170 GPS periods) and non-normal, so 3000 periods leave ~log(cond)/N < 0.5 %
+    growth = np.exp(np.mean(np.log(norms)))
+    assert growth == pytest.approx(rho, rel=5e-3)
+    assert (rho > 1) == unstable and st.stable == (not unstable)
+
+
+def test_reference_model_and_friction_limit():
+    p = load_vehicle("compact-ev")
+    ref = ReferenceModel(p)
+    kb, kg = steady_state_gains(p, 20.0)
+    assert ref(0.01, 20.0, 1.0) == pytest.approx((kb * 0.01, kg * 0.01), rel=1e-12)
+    beta, gamma = ref(0.2, 20.0, 0.5)
+    assert gamma == pytest.approx(0.85 * 0.5 * G / 20.0, rel=1e-12)
+    assert beta / gamma == pytest.approx(kb / kg, rel=1e-12)  # same steady turn
+
+
+def test_allocation_meets_torque_limits():
+    p = load_vehicle("compact-ev")
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        nz, tm = rng.uniform(-8000, 8000), rng.uniform(-1200, 1200)
+        a = allocate(nz, tm, p, 900.0)
+        assert abs(a["torque_rl"]) <= 900.0 + 1e-9 and abs(a["torque_rr"]) <= 900.0 + 1e-9
+        assert (a["torque_rl"] + a["torque_rr"]) / 2 == pytest.approx(np.clip(tm, -900, 900), abs=1e-9)
+        ach = (a["torque_rr"] - a["torque_rl"]) * p.track_rear / (2 * p.wheel_radius)
+        assert ach == pytest.approx(a["yaw_moment_achieved"], abs=1e-9)
+        assert a["limited"] == (abs(ach - nz) > 1e-6)
+
+
+def test_controller_tracks_on_the_nominal_bicycle():
+    # discrete controller on the exact linear plant: the error decays with the model-following pole
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p, k_beta=5.0, k_gamma=5.0)
+    ctl = TwoDofController(d)
+    A, B = lateral_matrices(p, 20.0)
+    x = np.zeros(2)
+    st = ctl.initial_state()
+    ref = ReferenceModel(p)
+    xd = np.array(ref(0.02, 20.0, 1.0))
+    errs = []
+    for k in range(3000):
+        st, out = ctl.step(st, k * 1e-3, {"speed": 20.0, "steer_driver": 0.02, "beta": x[0], "yaw_rate": x[1]})
+        u = np.array([out["steer"], out["yaw_moment"]])
+        x = x + 1e-3 * (A @ x + B @ u)
+        errs.append(np.abs(x - xd).max())
+    assert errs[-1] < 1e-4 * np.abs(xd).max() + 1e-9  # exp(-5 * 3 s) ~ 3e-7 of the step
