@@ -110,59 +110,74 @@ def gps_fix_mask(t: np.ndarray, cfg: SensorConfig) -> np.ndarray:
     return mask
 
 
-def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: int,
-            wheel_radius: float | None) -> dict:
-    """Sensor readings for a run.
+def draw_noise(cfg: SensorConfig, seed: int, n: int) -> dict:
+    """All noise of a run of ``n`` samples, drawn once (one stream per sensor)."""
+    rng = _streams(seed)
+    return {"steer": rng["steer"].standard_normal(n), "gyro": rng["gyro"].standard_normal(n),
+            "roll_gyro": rng["roll_gyro"].standard_normal(n), "accel": rng["accel"].standard_normal((2, n)),
+            "wheel": rng["wheel"].standard_normal((4, n)), "speed": rng["speed"].standard_normal(n),
+            "gps": rng["gps"].standard_normal((2, n)), "heading": rng["heading"].standard_normal(n)}
 
-    ``truth`` holds the plant's named truth outputs (arrays over ``t``), ``inputs``
-    the applied ``steer`` and ``yaw_moment``. Returns drive-log columns (NaN where
-    a GPS row has no fix).
+
+def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: int,
+            wheel_radius: float | None, noise: dict | None = None, index=None) -> dict:
+    """Sensor readings for a run (or, with ``index``, for the samples ``index`` of it).
+
+    ``truth`` holds the plant's named truth outputs (arrays over ``t``; with
+    ``index`` they need only reach the last index), ``inputs`` the applied
+    ``steer``, ``yaw_moment`` and road ``bank`` at the same samples. Returns
+    drive-log columns (NaN where a GPS row has no fix). The per-sample form used by
+    closed loops reads exactly the same noise as the whole-run form.
     """
     t = np.asarray(t, float)
     n = len(t)
-    rng = _streams(seed)
-    r = truth["yaw_rate"]
+    noise = draw_noise(cfg, seed, n) if noise is None else noise
+    idx = np.arange(n) if index is None else np.atleast_1d(np.asarray(index))
+    last = int(idx.max()) + 1
+    tr = {k: np.asarray(v, float)[idx] for k, v in truth.items()}
+    inp = {k: np.broadcast_to(np.asarray(v, float), (n,))[idx] if np.ndim(v) else np.full(len(idx), float(v))
+           for k, v in inputs.items()}
+    r = tr["yaw_rate"]
     out = {
-        "speed": None, "steer": inputs["steer"] + cfg.steer_noise * rng["steer"].standard_normal(n),
-        "yaw_moment": np.asarray(inputs["yaw_moment"], float),
-        "yaw_rate": (1.0 + cfg.gyro_scale_error) * r + cfg.gyro_bias + cfg.gyro_noise * rng["gyro"].standard_normal(n),
-        "roll_rate": truth["roll_rate"] + cfg.roll_gyro_bias + cfg.roll_gyro_noise * rng["roll_gyro"].standard_normal(n),
+        "speed": None, "steer": inp["steer"] + cfg.steer_noise * noise["steer"][idx],
+        "yaw_moment": inp["yaw_moment"],
+        "yaw_rate": (1.0 + cfg.gyro_scale_error) * r + cfg.gyro_bias + cfg.gyro_noise * noise["gyro"][idx],
+        "roll_rate": tr["roll_rate"] + cfg.roll_gyro_bias + cfg.roll_gyro_noise * noise["roll_gyro"][idx],
     }
     # Accelerometers on the sprung mass: specific force, gravity enters through roll + bank.
-    tilt = truth["roll"] + inputs.get("bank", 0.0)
-    acc_noise = rng["accel"].standard_normal((2, n))
-    out["ax"] = truth["ax"] + cfg.accel_bias_x + cfg.accel_noise * acc_noise[0]
-    out["ay"] = truth["ay"] * np.cos(truth["roll"]) + G * np.sin(tilt) + cfg.accel_bias_y + cfg.accel_noise * acc_noise[1]
+    tilt = tr["roll"] + inp.get("bank", 0.0)
+    out["ax"] = tr["ax"] + cfg.accel_bias_x + cfg.accel_noise * noise["accel"][0, idx]
+    out["ay"] = (tr["ay"] * np.cos(tr["roll"]) + G * np.sin(tilt) + cfg.accel_bias_y
+                 + cfg.accel_noise * noise["accel"][1, idx])
     # Wheel speeds and the longitudinal speed from the non-driven (front) wheels.
-    wheel_noise = rng["wheel"].standard_normal((4, n))
     for i, wname in enumerate(("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")):
-        out[wname] = truth[wname] + cfg.wheel_speed_noise * wheel_noise[i]
-    if wheel_radius is not None and np.all(np.isfinite(truth["wheel_speed_fl"])):
-        v_front = 0.5 * (truth["wheel_speed_fl"] + truth["wheel_speed_fr"]) * wheel_radius
+        out[wname] = tr[wname] + cfg.wheel_speed_noise * noise["wheel"][i, idx]
+    if wheel_radius is not None and np.all(np.isfinite(tr["wheel_speed_fl"])):
+        v_front = 0.5 * (tr["wheel_speed_fl"] + tr["wheel_speed_fr"]) * wheel_radius
     else:
-        v_front = truth["vx"]
-    out["speed"] = v_front + cfg.speed_noise * rng["speed"].standard_normal(n)
-    # GPS.
-    fix = gps_fix_mask(t, cfg)
-    t_meas = t - cfg.gps_latency
-    interp = (lambda sig: np.interp(t_meas, t, sig))
+        v_front = tr["vx"]
+    out["speed"] = v_front + cfg.speed_noise * noise["speed"][idx]
+    # GPS: each fix describes the antenna's motion gps_latency s before its row.
+    fix = gps_fix_mask(t, cfg)[idx]
+    t_meas = t[idx] - cfg.gps_latency
+    th = t[:last]
+    interp = (lambda sig: np.interp(t_meas, th, np.asarray(sig, float)[:last]))
     yaw_c = interp(truth["yaw"])
-    vx_a = interp(truth["vx"] - truth["yaw_rate"] * cfg.gps_antenna_y)
-    vy_a = interp(truth["vy"] + truth["yaw_rate"] * cfg.gps_antenna_x)
+    vx_a = interp(np.asarray(truth["vx"])[:last] - np.asarray(truth["yaw_rate"])[:last] * cfg.gps_antenna_y)
+    vy_a = interp(np.asarray(truth["vy"])[:last] + np.asarray(truth["yaw_rate"])[:last] * cfg.gps_antenna_x)
     # rotate the antenna velocity into the earth frame, add noise there
     ve = vx_a * np.cos(yaw_c) - vy_a * np.sin(yaw_c)
     vn = vx_a * np.sin(yaw_c) + vy_a * np.cos(yaw_c)
-    gps_noise = rng["gps"].standard_normal((2, n))
     sigma = cfg.gps_velocity_noise * cfg.gps_hdop
-    ve_m, vn_m = ve + sigma * gps_noise[0], vn + sigma * gps_noise[1]
+    ve_m, vn_m = ve + sigma * noise["gps"][0, idx], vn + sigma * noise["gps"][1, idx]
     ground = np.hypot(ve_m, vn_m)
     course = wrap_angle(np.arctan2(vn_m, ve_m))
     course = np.where(ground >= cfg.gps_min_speed, course, np.nan)
-    nan = np.full(n, np.nan)
+    nan = np.full(len(idx), np.nan)
     out["gps_course"] = np.where(fix, course, nan)
     out["gps_speed"] = np.where(fix, ground, nan)
     out["gps_hdop"] = np.where(fix, cfg.gps_hdop, nan)
     out["gps_sats"] = np.where(fix, float(cfg.gps_sats), nan)
-    heading = wrap_angle(yaw_c + cfg.heading_noise * rng["heading"].standard_normal(n))
+    heading = wrap_angle(yaw_c + cfg.heading_noise * noise["heading"][idx])
     out["gps_heading"] = np.where(fix, heading, nan)
     return out

@@ -94,7 +94,8 @@ class SimResult:
 
 def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver, *,
              disturbances: Disturbances | None = None, sensors: SensorConfig | None = None,
-             seed: int = 0, dt: float = 1e-3, compile: bool = True) -> SimResult:
+             seed: int = 0, dt: float = 1e-3, compile: bool = True, controller=None,
+             estimator: str | None = "dakf", mu_assumed: float | None = None) -> SimResult:
     """Run one manoeuvre on one plant and return the named signals.
 
     Parameters
@@ -111,6 +112,14 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         Seeds every noise source; equal seeds give identical runs.
     dt : float
         Fixed step [s].
+    controller : None, "none", "yaw-pi", "two-dof", "two-dof-true" or a controller object
+        Closes the stability-control loop: plant -> sensors -> estimator ->
+        controller -> actuators -> plant (see :func:`_stability_loop`). ``None``
+        runs the driver alone (no sensors in the loop).
+    estimator : str
+        Estimation method in the loop (``dakf`` default); ignored by ``two-dof-true``.
+    mu_assumed : float
+        Friction the reference model assumes (default the run's friction).
     """
     model = get_plant(plant) if isinstance(plant, str) else plant
     model.check_params(params)
@@ -130,7 +139,12 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         path = maneuver.path
         x0[model.state_index("x")], x0[model.state_index("y")] = path.x[0], path.y[0]
         x0[model.state_index("yaw")] = np.arctan2(path.y[1] - path.y[0], path.x[1] - path.x[0])
-    if maneuver.open_loop:
+    meas = None
+    if controller is not None:
+        mu = disturbances.friction.mu if mu_assumed is None else mu_assumed
+        X, Y, meas, extra = _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, controller,
+                                            estimator, mu)
+    elif maneuver.open_loop:
         cmd[COMMANDS.index("steer")] = maneuver.steer(t)
         X, Y = cp.rollout(x0, cmd, W)
     else:
@@ -142,8 +156,11 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     truth = {name: Y[i] for i, name in enumerate(TRUTH)}
     commands = {name: cmd[i] for i, name in enumerate(COMMANDS)}
     dist = {name: W[i] for i, name in enumerate(DISTURBANCES)}
-    meas = measure(t, truth, {"steer": commands["steer"], "yaw_moment": commands["yaw_moment"],
-                              "bank": dist["bank"]}, sensors, seed, params.wheel_radius)
+    if meas is None:
+        meas = measure(t, truth, {"steer": commands["steer"], "yaw_moment": commands["yaw_moment"],
+                                  "bank": dist["bank"]}, sensors, seed, params.wheel_radius)
+    else:
+        commands.update(extra)
     meta = {"vehicle": params.name, "params_digest": params.digest(), "plant": model.name,
             "maneuver": maneuver.name, "speed_mps": maneuver.speed, "seed": seed, "dt": dt,
             "backend": cp.backend, "rk4_substeps": cp.n_sub, "events": dict(maneuver.events)}
@@ -153,6 +170,103 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
 def _uniform(mu: float):
     from plants.disturbances import Friction
     return Friction(mu=mu)
+
+
+def make_controller(kind, params: VehicleParams, dt: float):
+    """A controller object from a name (``none``, ``yaw-pi``, ``two-dof``, ``two-dof-true``)."""
+    from controllers.baselines import NoControl, YawRatePI
+    from controllers.two_dof import TwoDofController, TwoDofDesign
+    if not isinstance(kind, str):
+        return kind
+    if kind == "none":
+        return NoControl()
+    if kind == "yaw-pi":
+        return YawRatePI(params.as_nominal())
+    if kind in ("two-dof", "two-dof-true"):
+        return TwoDofController(TwoDofDesign(params.as_nominal(), dt=dt))
+    raise SimulationError(f"unknown controller '{kind}'; known: none, yaw-pi, two-dof, two-dof-true")
+
+
+def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, controller, estimator, mu):
+    """Plant -> sensors -> estimator -> controller -> actuators -> plant, one sample at a time.
+
+    Sensors read the truth of the previous sample (a one-sample sensor and
+    computation delay, as on an ECU that samples, computes and then actuates); the
+    logged sensor columns are exactly what the estimator was given.
+    """
+    from controllers.actuators import Actuators
+    from plants.sensors import draw_noise
+    from .estimation import design_filter
+    from .estimation.component import EstimatorComponent
+
+    n, dt = len(t), cp.dt
+    true_states = controller == "two-dof-true"
+    ctl = make_controller(controller, params, dt)
+    est = None if (true_states or estimator is None) else EstimatorComponent(design_filter(estimator, params, dt=dt))
+    act = Actuators(params)
+    driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
+    steer_drv = maneuver.steer(t) if maneuver.open_loop else np.zeros(n)
+    noise = draw_noise(sensors, seed, n)
+    X = np.empty((len(model.states), n + 1))
+    Y = np.empty((len(TRUTH), n))
+    X[:, 0] = x0
+    _, y_prev = cp.step(x0, np.array([0.0, 0.0, maneuver.speed, 1.0]), W[:, 0])
+    hist = np.empty((len(TRUTH), n))
+    inputs = {"steer": np.zeros(n), "yaw_moment": np.zeros(n), "bank": W[DISTURBANCES.index("bank")]}
+    log_names = None
+    meas_log = {}
+    extra = {name: np.zeros(n) for name in ("steer_driver", "yaw_moment_cmd", "beta_ref", "yaw_rate_ref",
+                                             "beta_est", "yaw_rate_est", "yaw_moment_limited")}
+    ix, iy_, iyaw = (model.state_index(s) for s in ("x", "y", "yaw"))
+    ivx = model.states.index("vx") if "vx" in model.states else None
+    truth_idx = {name: i for i, name in enumerate(TRUTH)}
+    est_state = est.initial_state(0.0) if est is not None else None
+    ctl_state, act_state = ctl.initial_state(), act.initial_state()
+    drv_state = driver.initial_state() if driver is not None else None
+    flags = {"steer_limited": 0.0, "yaw_moment_limited": 0.0}
+    x = x0
+    for k in range(n):
+        hist[:, k] = y_prev  # the sensors sample the truth of the previous step
+        truth_view = {name: hist[i, :k + 1] for name, i in truth_idx.items()}
+        m = measure(t[:k + 1], truth_view, {key: v[:k + 1] for key, v in inputs.items()}, sensors, seed,
+                    params.wheel_radius, noise=noise, index=k)
+        m = {key: float(v[0]) for key, v in m.items()}
+        if log_names is None:
+            log_names = list(m)
+            meas_log = {key: np.empty(n) for key in log_names}
+        for key in log_names:
+            meas_log[key][k] = m[key]
+        if driver is not None:
+            vx = x[ivx] if ivx is not None else maneuver.speed
+            drv_state, steer_drv[k] = driver.steer(drv_state, x[ix], x[iy_], x[iyaw], vx)
+        sig = dict(m)
+        sig["dt"] = dt if k == 0 else t[k] - t[k - 1]
+        if est is not None:
+            est_state, e = est.step(est_state, t[k], sig)
+            b, r = e["beta"], e["yaw_rate"]
+            d1 = e["d1"] if np.isfinite(e["d1"]) else 0.0
+            d2 = e["d2"] if np.isfinite(e["d2"]) else 0.0
+        else:
+            b, r, d1, d2 = y_prev[truth_idx["beta"]], y_prev[truth_idx["yaw_rate"]], 0.0, 0.0
+        cs = {"speed": m["speed"], "steer_driver": steer_drv[k], "beta": b, "yaw_rate": r, "d1": d1, "d2": d2,
+              "mu": mu, "dt": sig["dt"], **flags}
+        ctl_state, u = ctl.step(ctl_state, t[k], cs)
+        act_state, a = act.step(act_state, t[k], {"steer": u["steer"], "yaw_moment": u["yaw_moment"], "dt": sig["dt"]})
+        flags = {"steer_limited": a["steer_limited"], "yaw_moment_limited": a["yaw_moment_limited"]}
+        cmd[0, k], cmd[1, k] = a["steer"], a["yaw_moment"]
+        inputs["steer"][k], inputs["yaw_moment"][k] = a["steer"], a["yaw_moment"]
+        for key, val in (("steer_driver", steer_drv[k]), ("yaw_moment_cmd", u["yaw_moment"]),
+                         ("beta_ref", u["beta_ref"]), ("yaw_rate_ref", u["yaw_rate_ref"]), ("beta_est", b),
+                         ("yaw_rate_est", r), ("yaw_moment_limited", a["yaw_moment_limited"])):
+            extra[key][k] = val
+        x, Y[:, k] = cp.step(x, cmd[:, k], W[:, k])
+        y_prev = Y[:, k]
+        if not np.all(np.isfinite(x)):
+            X[:, k + 1:] = np.nan
+            break
+        X[:, k + 1] = x
+    meas_log["steer"] = meas_log["steer"]  # the measured road-wheel angle (applied + sensor noise)
+    return X, Y, meas_log, extra
 
 
 def _closed_loop(cp, model: PlantModel, params, maneuver, x0, cmd, W, t):

@@ -125,3 +125,15 @@ def test_bad_config():
         SensorConfig(gps_rate=0.0)
     with pytest.raises(ModelError, match="outage"):
         SensorConfig(gps_outages=((5.0, 4.0),))
+
+
+def test_per_sample_form_reads_the_same_noise():
+    n = 3000
+    t = np.arange(n) * 1e-3
+    tr = truth_const(n, yaw=0.3 * t, yaw_rate=np.full(n, 0.3))
+    cfg = SensorConfig(gps_latency=0.05, gyro_bias=0.001)
+    whole = measure(t, tr, inputs(n), cfg, 9, 0.3)
+    for k in (0, 1, 200, 1000, 2999):
+        one = measure(t, tr, inputs(n), cfg, 9, 0.3, index=k)
+        for name, v in whole.items():
+            np.testing.assert_array_equal(one[name], v[k:k + 1], err_msg=f"{name} at {k}")
