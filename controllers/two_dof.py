@@ -17,10 +17,15 @@ reference-to-state map is ``K`` (poles ``-K_b``, ``-K_g``) while the plant's own
 poles stay in the loop (the controller inverts the plant), which is why internal
 stability is checked (:mod:`controllers.stability`).
 
-Discrete realisation at the control period ``dt``: the integrator by zero-order
-hold (``xi[k+1] = xi[k] + dt e[k]``, exact for an error held over the period), the
-reference derivative by a backward difference through a first-order low-pass of
-time constant ``derivative_tau``. Anti-windup by conditional integration: while a
+The static reference of seed 003 eq. 23 jumps with the steer (and with the
+friction limit); inverting the plant against a jump asks for an impulse. The
+reference therefore passes through a first-order lag of time constant
+``reference_tau`` (the car's own yaw response is of that order), whose derivative
+``(x_ss - x_d) / tau`` is known exactly: that is the ``x_d'`` the feed-forward uses.
+
+Discrete realisation at the control period ``dt``: the integrator and the
+reference lag by zero-order hold (``xi[k+1] = xi[k] + dt e[k]``, exact for a held
+error; the lag with ``exp(-dt/tau)``). Anti-windup by conditional integration: while a
 command is limited by an actuator and the error would push it further, ``xi`` is
 held.
 """
@@ -47,12 +52,15 @@ class TwoDofDesign:
     k_gamma: float = 5.0
     """Model-following pole for yaw rate [rad/s] (seed 003: 5)."""
     dt: float = 1e-3
-    derivative_tau: float = 0.02
+    reference_tau: float = 0.1
+    """Time constant [s] of the lag applied to the static reference (see the module notes)."""
     min_speed: float = 3.0
     """Below this speed [m/s] the controller passes the driver's steer through and makes no yaw moment."""
     friction_margin: float = 0.85
     disturbance_rejection: bool = True
-    method: str = "zoh-integrator, filtered backward-difference reference derivative"
+    disturbance_filter_tau: float = 0.0
+    """First-order low-pass [s] on the disturbance estimates before rejection (0 = none)."""
+    method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
 
     def __post_init__(self):
         if not (self.k_beta > 0 and self.k_gamma > 0):
@@ -78,9 +86,11 @@ class TwoDofDesign:
 @dataclass(frozen=True)
 class ControllerState:
     xi: np.ndarray
-    xd_prev: np.ndarray
-    xd_dot: np.ndarray
-    started: bool = False
+    """Integral of the tracking error."""
+    xd: np.ndarray
+    """The lagged reference (beta_d, gamma_d)."""
+    dist: np.ndarray = None
+    """Low-passed disturbance estimates (d1, d2)."""
 
 
 class TwoDofController:
@@ -97,26 +107,24 @@ class TwoDofController:
         self.design = design
 
     def initial_state(self) -> ControllerState:
-        z = np.zeros(2)
-        return ControllerState(z, z, z, False)
+        return ControllerState(np.zeros(2), np.zeros(2), np.zeros(2))
 
     def step(self, state: ControllerState, t: float, s: dict):
         d = self.design
         v = s["speed"]
-        beta_d, gamma_d = d.reference(s["steer_driver"], v, s.get("mu", d.params.mu))
-        xd = np.array([beta_d, gamma_d])
-        if state.started:
-            raw = (xd - state.xd_prev) / d.dt
-            a = d.dt / (d.derivative_tau + d.dt)
-            xd_dot = state.xd_dot + a * (raw - state.xd_dot)
-        else:
-            xd_dot = np.zeros(2)
+        x_ss = np.array(d.reference(s["steer_driver"], v, s.get("mu", d.params.mu)))
+        xd = state.xd
+        xd_dot = (x_ss - xd) / d.reference_tau
+        xd_next = x_ss + (xd - x_ss) * np.exp(-d.dt / d.reference_tau)
+        beta_d, gamma_d = float(xd[0]), float(xd[1])
         if v < d.min_speed:
             out = {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
-            return ControllerState(np.zeros(2), xd, xd_dot, True), out
+            return ControllerState(np.zeros(2), xd_next, np.zeros(2)), out
         Bi, Kp, Ki, BiA = d.gains(v)
         e = xd - np.array([s["beta"], s["yaw_rate"]])
-        dist = np.array([s.get("d1", 0.0), s.get("d2", 0.0)]) if d.disturbance_rejection else np.zeros(2)
+        d_raw = np.array([s.get("d1", 0.0), s.get("d2", 0.0)]) if d.disturbance_rejection else np.zeros(2)
+        prev = state.dist if state.dist is not None else np.zeros(2)
+        dist = d_raw if d.disturbance_filter_tau <= 0 else prev + (d_raw - prev) * (1 - np.exp(-d.dt / d.disturbance_filter_tau))
         u_ff = Bi @ xd_dot - BiA @ xd
         u = Kp @ e + Ki @ state.xi + u_ff - Bi @ dist
         # conditional integration: hold xi in a channel whose command is limited
@@ -124,4 +132,4 @@ class TwoDofController:
         limited = np.array([s.get("steer_limited", 0.0), s.get("yaw_moment_limited", 0.0)]) > 0.5
         xi = state.xi + np.where(limited, 0.0, de)
         out = {"steer": float(u[0]), "yaw_moment": float(u[1]), "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
-        return ControllerState(xi, xd, xd_dot, True), out
+        return ControllerState(xi, xd_next, dist), out

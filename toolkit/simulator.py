@@ -225,8 +225,10 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
     drv_state = driver.initial_state() if driver is not None else None
     flags = {"steer_limited": 0.0, "yaw_moment_limited": 0.0}
     x = x0
+    applied = (0.0, 0.0)
     for k in range(n):
-        hist[:, k] = y_prev  # the sensors sample the truth of the previous step
+        hist[:, k] = y_prev  # the sensors sample the truth of the previous step ...
+        inputs["steer"][k], inputs["yaw_moment"][k] = applied  # ... and the inputs applied over it
         truth_view = {name: hist[i, :k + 1] for name, i in truth_idx.items()}
         m = measure(t[:k + 1], truth_view, {key: v[:k + 1] for key, v in inputs.items()}, sensors, seed,
                     params.wheel_radius, noise=noise, index=k)
@@ -254,7 +256,7 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
         act_state, a = act.step(act_state, t[k], {"steer": u["steer"], "yaw_moment": u["yaw_moment"], "dt": sig["dt"]})
         flags = {"steer_limited": a["steer_limited"], "yaw_moment_limited": a["yaw_moment_limited"]}
         cmd[0, k], cmd[1, k] = a["steer"], a["yaw_moment"]
-        inputs["steer"][k], inputs["yaw_moment"][k] = a["steer"], a["yaw_moment"]
+        applied = (a["steer"], a["yaw_moment"])
         for key, val in (("steer_driver", steer_drv[k]), ("yaw_moment_cmd", u["yaw_moment"]),
                          ("beta_ref", u["beta_ref"]), ("yaw_rate_ref", u["yaw_rate_ref"]), ("beta_est", b),
                          ("yaw_rate_est", r), ("yaw_moment_limited", a["yaw_moment_limited"])):
@@ -265,7 +267,6 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
             X[:, k + 1:] = np.nan
             break
         X[:, k + 1] = x
-    meas_log["steer"] = meas_log["steer"]  # the measured road-wheel angle (applied + sensor noise)
     return X, Y, meas_log, extra
 
 

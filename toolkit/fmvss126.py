@@ -1,0 +1,165 @@
+"""FMVSS 126 (GTR 8 / UN R13-H) electronic stability control test, as the regulation does it.
+
+* Slowly increasing steer (SIS): 80 km/h, hand-wheel ramp at 13.5 deg/s, both
+  directions; ``A`` is the hand-wheel angle giving 0.3 g, from a linear regression
+  of the filtered lateral acceleration against hand-wheel angle over 0.1-0.375 g,
+  averaged over the two directions.
+* Sine with dwell: 0.7 Hz, 500 ms dwell from the second peak; amplitudes 1.5 A,
+  2 A, 2.5 A, ... up to max(6.5 A, 270 deg), each capped at 300 deg; both directions;
+  throttle released at steer start.
+* Data processing: 12-pole phaseless Butterworth (6th order, forward-backward):
+  10 Hz on the hand-wheel angle, 6 Hz on yaw rate and lateral acceleration;
+  zeroing by the mean of the 0.5 s before the steer; BOS where the hand-wheel angle
+  first reaches 5 deg; COS where it returns to zero after the dwell (linear
+  interpolation).
+* Criteria: yaw rate <= 35 % at COS + 1.0 s and <= 20 % at COS + 1.75 s of the
+  first yaw-rate peak recorded after the hand-wheel angle changes sign (between
+  its first and second peaks, i.e. the peak in the dwell's direction); for amplitudes >= 5 A, lateral displacement (double integral of the
+  lateral acceleration from BOS) >= 1.83 m at BOS + 1.07 s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.signal
+
+from plants import G, VehicleParams
+from plants.disturbances import Disturbances, Friction
+from plants.maneuvers import ramp_steer, sine_with_dwell
+
+from .simulator import simulate
+
+SPEED = 80 / 3.6
+HANDWHEEL_RATE = np.deg2rad(13.5)
+
+
+def zero_phase(x: np.ndarray, fc: float, fs: float) -> np.ndarray:
+    """12-pole phaseless Butterworth low-pass (6th order forward and backward)."""
+    b, a = scipy.signal.butter(6, fc / (fs / 2.0))
+    return scipy.signal.filtfilt(b, a, x)
+
+
+@dataclass(frozen=True)
+class SwdScore:
+    bos: float
+    cos: float
+    yaw_peak: float
+    """First yaw-rate peak after the hand-wheel changes sign, in the dwell's direction [rad/s]."""
+    yaw_ratio_1_0: float
+    """Yaw rate at COS + 1.0 s as percent of the first peak."""
+    yaw_ratio_1_75: float
+    lateral_displacement_m: float
+    """Lateral displacement at BOS + 1.07 s in the direction of the first steer [m]."""
+
+    def passes(self, amplitude_deg: float, a_deg: float) -> tuple[bool, list[str]]:
+        failed = []
+        if self.yaw_ratio_1_0 > 35.0:
+            failed.append("yaw_ratio_1_0")
+        if self.yaw_ratio_1_75 > 20.0:
+            failed.append("yaw_ratio_1_75")
+        if amplitude_deg >= 5.0 * a_deg - 1e-9 and self.lateral_displacement_m < 1.83:
+            failed.append("lateral_displacement")
+        return not failed, failed
+
+
+def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np.ndarray) -> SwdScore:
+    """Score one sine-with-dwell run (hand-wheel angle [rad], yaw rate [rad/s], lateral acceleration [m/s^2])."""
+    t = np.asarray(t, float)
+    fs = 1.0 / np.median(np.diff(t))
+    hw = zero_phase(np.asarray(handwheel, float), 10.0, fs)
+    r = zero_phase(np.asarray(yaw_rate, float), 6.0, fs)
+    a = zero_phase(np.asarray(ay, float), 6.0, fs)
+    above = np.nonzero(np.abs(hw) >= np.deg2rad(5.0))[0]
+    if len(above) == 0:
+        raise ValueError("no steer of 5 deg or more: not a sine-with-dwell run")
+    k0 = above[0]
+    pre = (t >= t[k0] - 0.5 - 0.25) & (t < t[k0] - 0.25)
+    if pre.sum() > 10:
+        hw, r, a = hw - hw[pre].mean(), r - r[pre].mean(), a - a[pre].mean()
+    k0 = np.nonzero(np.abs(hw) >= np.deg2rad(5.0))[0][0]
+    s = np.sign(hw[k0])
+    bos = float(np.interp(np.deg2rad(5.0), [s * hw[k0 - 1], s * hw[k0]], [t[k0 - 1], t[k0]]))
+    k_min = k0 + int(np.argmin(s * hw[k0:]))  # the dwell
+    after = np.nonzero(s * hw[k_min:] >= 0.0)[0]
+    if len(after):
+        j = k_min + after[0]
+        cos = float(np.interp(0.0, [s * hw[j - 1], s * hw[j]], [t[j - 1], t[j]]))
+    else:
+        cos = float(t[k_min + int(np.argmin(np.abs(hw[k_min:])))])
+    # the hand-wheel changes sign between its first and second peaks; the yaw-rate peak
+    # that counts is the first one after that, in the dwell's direction (-s)
+    k_first = k0 + int(np.argmax(s * hw[k0:k_min]))
+    k_sign = k_first + int(np.argmax(s * hw[k_first:k_min] < 0.0))
+    win = (t >= t[k_sign]) & (t <= cos + 1.75)
+    peak = float(np.max(-s * r[win]))
+    ratio = (lambda tt: float(100.0 * (-s) * np.interp(tt, t, r) / peak))
+    sel = t >= bos
+    vel = np.concatenate([[0.0], np.cumsum(0.5 * (a[sel][1:] + a[sel][:-1]) * np.diff(t[sel]))])
+    disp = np.concatenate([[0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(t[sel]))])
+    lat = float(s * np.interp(bos + 1.07, t[sel], disp))
+    return SwdScore(bos, cos, peak, ratio(cos + 1.0), ratio(cos + 1.75), lat)
+
+
+def amplitudes(a_deg: float) -> list[float]:
+    """1.5 A, 2 A, ... up to max(6.5 A, 270 deg); each capped at 300 deg [deg]."""
+    top = max(6.5 * a_deg, 270.0)
+    out, k = [], 1.5
+    while k * a_deg <= top + 1e-9:
+        out.append(min(k * a_deg, 300.0))
+        k += 0.5
+    return sorted(set(out))
+
+
+def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, controller=None,
+           estimator: str = "dakf", seed: int = 0) -> float:
+    """``A`` [deg hand-wheel] from the slowly increasing steer, averaged over both directions."""
+    p.require("steering_ratio", model="FMVSS 126")
+    mu = p.mu if mu is None else mu
+    vals = []
+    for direction in (1.0, -1.0):
+        rate = direction * HANDWHEEL_RATE / p.steering_ratio
+        man = ramp_steer(SPEED, rate, start=1.0, duration=1.0 + np.deg2rad(270.0) / HANDWHEEL_RATE)
+        r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=seed,
+                     controller=controller, estimator=estimator)
+        fs = 1.0 / r.meta["dt"]
+        ay = direction * zero_phase(r.truth["ay"], 6.0, fs)
+        hw = direction * zero_phase(r.commands.get("steer_driver", r.commands["steer"]) * p.steering_ratio, 10.0, fs)
+        sel = (ay >= 0.1 * G) & (ay <= 0.375 * G)
+        k_end = np.argmax(ay >= 0.375 * G) if np.any(ay >= 0.375 * G) else len(ay)
+        sel[k_end:] = False
+        if sel.sum() < 10:
+            raise ValueError(f"{p.name}: the slowly increasing steer never reached 0.375 g on mu = {mu}")
+        slope, icpt = np.polyfit(hw[sel], ay[sel], 1)
+        vals.append(np.degrees((0.3 * G - icpt) / slope))
+    return float(np.mean(vals))
+
+
+def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu: float | None = None,
+               plant: str = "two-track", seed: int = 0, a_deg: float | None = None, quick: bool = False):
+    """The sine-with-dwell series. Returns (A in deg, rows, verdict)."""
+    mu = p.mu if mu is None else mu
+    a_deg = find_a(p, plant, mu, seed=seed) if a_deg is None else a_deg
+    amps = amplitudes(a_deg)
+    if quick:
+        amps = [x for x in amps if x >= 5.0 * a_deg - 1e-9][:2]
+    rows, failed_all = [], set()
+    for amp in amps:
+        for direction, label in ((1.0, "left"), (-1.0, "right")):
+            man = sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio)
+            r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=seed,
+                         controller=controller if controller != "none" else None, estimator=estimator)
+            hw = r.commands.get("steer_driver", r.commands["steer"]) * p.steering_ratio
+            if controller == "none":
+                hw = man.steer(r.t) * p.steering_ratio
+            sc = score_swd(r.t, hw, r.truth["yaw_rate"], r.truth["ay"])
+            ok, failed = sc.passes(amp, a_deg)
+            failed_all.update(failed)
+            rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
+                         "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
+                         "pass": ok})
+    verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
+               "controller": controller if isinstance(controller, str) else type(controller).__name__,
+               "estimator": estimator, "vehicle": p.name}
+    return a_deg, rows, verdict
