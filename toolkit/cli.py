@@ -101,6 +101,52 @@ def cmd_estimate(args) -> int:
     return 0
 
 
+def cmd_fmvss126(args) -> int:
+    import json
+
+    from .fmvss126 import run_series
+    from .logio import atomic_write
+    from pathlib import Path
+
+    p = load_vehicle(args.vehicle)
+    a_deg, rows, verdict = run_series(p, args.controller, args.estimator, args.mu, quick=args.quick,
+                                      seed=args.seed)
+    out = Path(args.out)
+    keys = list(rows[0])
+    lines = [",".join(keys)] + [",".join(str(r[k]).lower() if isinstance(r[k], bool) else
+                                         (f"{r[k]:.6g}" if isinstance(r[k], float) else str(r[k])) for k in keys)
+                                for r in rows]
+    atomic_write(out / "fmvss126.csv", lambda fh: fh.write("\n".join(lines) + "\n"))
+    atomic_write(out / "verdict.json", lambda fh: fh.write(json.dumps(verdict, indent=2) + "\n"))
+    n_pass = sum(r["pass"] for r in rows)
+    print(f"{p.name} FMVSS 126, controller {args.controller}: A = {a_deg:.1f} deg hand-wheel, {n_pass}/{len(rows)} "
+          f"runs pass -> {'PASS' if verdict['pass'] else 'FAIL ' + ', '.join(verdict['failed_criteria'])} ({out})")
+    return 0
+
+
+def cmd_score_swd(args) -> int:
+    from .fmvss126 import score_swd
+    from .logio import read_log_csv
+
+    p = load_vehicle(args.vehicle)
+    p.require("steering_ratio", model="FMVSS 126 scoring")
+    log = read_log_csv(args.log)
+    steer = log["steer_driver"] if "steer_driver" in log else log["steer"]
+    if "ay" not in log:
+        from .logio import LogFormatError
+        raise LogFormatError(f"{args.log}: scoring needs the lateral acceleration column 'ay'")
+    sc = score_swd(log["t"], steer * p.steering_ratio, log["yaw_rate"], log["ay"])
+    amp = float(np.degrees(np.max(np.abs(steer)) * p.steering_ratio))
+    line = (f"BOS {sc.bos:.3f} s, COS {sc.cos:.3f} s, amplitude {amp:.1f} deg: yaw ratio {sc.yaw_ratio_1_0:.1f} % at "
+            f"COS+1.0 s, {sc.yaw_ratio_1_75:.1f} % at COS+1.75 s, lateral displacement "
+            f"{sc.lateral_displacement_m:.2f} m at BOS+1.07 s")
+    if args.a_deg is not None:
+        ok, failed = sc.passes(amp, args.a_deg)
+        line += f" -> {'PASS' if ok else 'FAIL ' + ', '.join(failed)}"
+    print(line)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="evstab", description="Stability-control design for in-wheel-motor EVs.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -129,6 +175,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
     sp.add_argument("--out", required=True, help="estimate CSV to write")
     sp.set_defaults(func=cmd_estimate)
+    sp = sub.add_parser("fmvss126", help="FMVSS 126 sine-with-dwell series on the two-track plant")
+    sp.add_argument("--vehicle", required=True)
+    sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")
+    sp.add_argument("--estimator", choices=METHODS, default="dakf")
+    sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--quick", action="store_true", help="only the first two amplitudes at or above 5 A")
+    sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")
+    sp.set_defaults(func=cmd_fmvss126)
+    sp = sub.add_parser("score-swd", help="score a recorded or simulated sine-with-dwell log (FMVSS 126)")
+    sp.add_argument("log")
+    sp.add_argument("--vehicle", required=True, help="for the steering ratio")
+    sp.add_argument("--a-deg", type=_positive, help="the vehicle's A [deg hand-wheel], to apply the criteria")
+    sp.set_defaults(func=cmd_score_swd)
     return ap
 
 

@@ -85,6 +85,9 @@ class SimResult:
             "ay_true": truth["ay"], "x_true": truth["x"], "y_true": truth["y"],
             "steer_true": self.commands["steer"],
         })
+        if "steer_driver" in self.commands:
+            cols["steer_driver"] = self.commands["steer_driver"]
+            cols["yaw_moment_cmd"] = self.commands["yaw_moment_cmd"]
         return cols
 
     def write_csv(self, path) -> None:

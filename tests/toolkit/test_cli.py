@@ -86,3 +86,20 @@ def test_estimate_bad_log_exit_2_names_row_and_column(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "row 3" in err and "'steer'" in err and "'abc' is not a number" in err
     assert not out.exists() and not list(tmp_path.glob("*.part"))
+
+
+def test_fmvss126_and_score_swd(tmp_path, capsys):
+    import json
+    out = tmp_path / "fm"
+    assert main(["fmvss126", "--vehicle", "compact-ev", "--controller", "none", "--quick", "--out", str(out)]) == 0
+    rows = (out / "fmvss126.csv").read_text().splitlines()
+    assert rows[0] == "amplitude_deg,direction,yaw_ratio_1_0,yaw_ratio_1_75,lateral_displacement_m,pass"
+    assert len(rows) == 5
+    verdict = json.loads((out / "verdict.json").read_text())
+    assert verdict["pass"] is False and "yaw_ratio_1_0" in verdict["failed_criteria"]  # it spins
+    log = tmp_path / "swd.csv"
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "sine-with-dwell", "--speed", "80",
+                 "--out", str(log)]) == 0
+    capsys.readouterr()
+    assert main(["score-swd", str(log), "--vehicle", "compact-ev", "--a-deg", "22.13"]) == 0
+    assert "FAIL yaw_ratio_1_0" in capsys.readouterr().out
