@@ -2,7 +2,7 @@
 
 Rows: sine with dwell 80 km/h (3.5 A), ramp steer 60 km/h, ISO 3888-1 60 km/h on
 mu 0.5 (compact EV), lane change 25 km/h with a 2 s outage and two bad fixes
-(micro EV); each with exact and +40 % nominal cornering stiffness; gyro bias
+(micro EV); each with exact, +40 % and -40 % nominal cornering stiffness; gyro bias
 3 mrad/s and 1 % scale error throughout. Writes ``robustness.csv``/``.md``.
 
 Run: ``python -m studies.estimation_robustness OUT_DIR [--quick]``

@@ -23,8 +23,8 @@ def test_intersample(tmp_path):
 def test_robustness_quick(tmp_path):
     rows = estimation_robustness.main(tmp_path, quick=True)
     with open(tmp_path / "robustness.csv") as fh:
-        assert len(list(csv.DictReader(fh))) == len(rows) == 2 * 2 * 6
-    plus40 = [r for r in rows if r["nominal_stiffness"] == "+40 %"]
-    for scen in {r["scenario"] for r in plus40}:
-        by = {r["method"]: r["beta_rms_deg"] for r in plus40 if r["scenario"] == scen}
+        assert len(list(csv.DictReader(fh))) == len(rows) == 2 * 3 * 6
+    plus40 = [r for r in rows if r["nominal_stiffness"] in ("+40 %", "-40 %")]
+    for scen in {(r["scenario"], r["nominal_stiffness"]) for r in plus40}:
+        by = {r["method"]: r["beta_rms_deg"] for r in plus40 if (r["scenario"], r["nominal_stiffness"]) == scen}
         assert by["dakf"] < by["lob"] and by["dakf"] < by["kf"], scen

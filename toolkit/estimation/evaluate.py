@@ -2,7 +2,7 @@
 
 Each scenario drives the two-track plant (the truth) with sensor errors and GPS
 faults, and each estimator is designed from a *nominal* parameter set that is
-either exact or has every cornering stiffness 40 % too high. Manoeuvres begin
+exact or has every cornering stiffness 40 % too high or too low. Manoeuvres begin
 after 10 s of straight driving so every filter has converged; errors are taken
 from 1 s before the manoeuvre to the end of the run.
 """
@@ -98,7 +98,7 @@ def robustness_table(methods=METHODS, seed: int = 0, quick: bool = False, noise:
     """Rows: (scenario, nominal stiffness, method, beta RMS deg, beta max deg)."""
     rows = []
     for name, vehicle, log, window in robustness_scenarios(seed, quick):
-        for label, factor in (("exact", 1.0), ("+40 %", 1.4)):
+        for label, factor in (("exact", 1.0), ("+40 %", 1.4), ("-40 %", 0.6)):
             for m in methods:
                 rms, mx = beta_errors(m, vehicle, log, window, factor, noise)
                 rows.append({"scenario": name, "nominal_stiffness": label, "method": m,
