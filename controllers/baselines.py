@@ -17,12 +17,20 @@ from plants import VehicleParams
 from .reference import ReferenceModel
 
 
+@dataclass(frozen=True)
 class NoControl:
+    """No control; the reference is still computed so that tracking errors can be compared."""
+
+    params: VehicleParams
+    friction_margin: float = 0.85
+
     def initial_state(self):
         return None
 
     def step(self, state, t, s):
-        return None, {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": 0.0, "yaw_rate_ref": 0.0}
+        beta_d, gamma_d = ReferenceModel(self.params, self.friction_margin)(
+            s["steer_driver"], s["speed"], s.get("mu", self.params.mu))
+        return None, {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
 
 
 @dataclass(frozen=True)

@@ -182,7 +182,7 @@ def make_controller(kind, params: VehicleParams, dt: float):
     if not isinstance(kind, str):
         return kind
     if kind == "none":
-        return NoControl()
+        return NoControl(params.as_nominal())
     if kind == "yaw-pi":
         return YawRatePI(params.as_nominal())
     if kind in ("two-dof", "two-dof-true"):
