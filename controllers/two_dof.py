@@ -58,6 +58,11 @@ class TwoDofDesign:
     """Below this speed [m/s] the controller passes the driver's steer through and makes no yaw moment."""
     friction_margin: float = 0.85
     disturbance_rejection: bool = True
+    yaw_moment_max: float | None = None
+    """Largest achievable |N_z| [N m]; default from the rear motors: T_max t_r / R_w."""
+    steer_max: float = np.deg2rad(35.0)
+    yaw_priority: float = 4.0
+    """Weight of the yaw-rate row against the sideslip row when a command saturates."""
     disturbance_filter_tau: float = 0.0
     """First-order low-pass [s] on the disturbance estimates before rejection (0 = none)."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
@@ -67,6 +72,15 @@ class TwoDofDesign:
             raise ValueError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
             raise ValueError(f"control period must be > 0 s, got {self.dt}")
+
+    @property
+    def nz_max(self) -> float:
+        if self.yaw_moment_max is not None:
+            return self.yaw_moment_max
+        p = self.params
+        if p.max_motor_torque is not None and p.track_rear is not None and p.wheel_radius is not None:
+            return p.max_motor_torque * p.track_rear / p.wheel_radius
+        return np.inf
 
     @property
     def kd(self) -> np.ndarray:
@@ -127,9 +141,32 @@ class TwoDofController:
         dist = d_raw if d.disturbance_filter_tau <= 0 else prev + (d_raw - prev) * (1 - np.exp(-d.dt / d.disturbance_filter_tau))
         u_ff = Bi @ xd_dot - BiA @ xd
         u = Kp @ e + Ki @ state.xi + u_ff - Bi @ dist
+        u = self._allocate(u, v)
         # conditional integration: hold xi in a channel whose command is limited
         de = e * d.dt
         limited = np.array([s.get("steer_limited", 0.0), s.get("yaw_moment_limited", 0.0)]) > 0.5
         xi = state.xi + np.where(limited, 0.0, de)
         out = {"steer": float(u[0]), "yaw_moment": float(u[1]), "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
         return ControllerState(xi, xd_next, dist), out
+
+    def _allocate(self, u: np.ndarray, speed: float) -> np.ndarray:
+        """Saturation-aware allocation: when one command exceeds its limit, clip it and choose the
+        other to realise the demanded ``B u`` in weighted least squares, the yaw-rate row weighted
+        ``yaw_priority`` times the sideslip row (yaw stability comes first). Without saturation the
+        exact inverse is kept."""
+        d = self.design
+        delta, nz = float(u[0]), float(u[1])
+        if abs(delta) <= d.steer_max and abs(nz) <= d.nz_max:
+            return u
+        _, B = lateral_matrices(d.params, max(speed, d.min_speed))
+        v = B @ u
+        w = np.array([1.0, d.yaw_priority])
+        if abs(nz) > d.nz_max:
+            nz = float(np.clip(nz, -d.nz_max, d.nz_max))
+            col, rest = B[:, 0], v - B[:, 1] * nz
+            delta = float(np.clip(np.sum(w * col * rest) / np.sum(w * col * col), -d.steer_max, d.steer_max))
+        if abs(delta) > d.steer_max:
+            delta = float(np.clip(delta, -d.steer_max, d.steer_max))
+            col, rest = B[:, 1], v - B[:, 0] * delta
+            nz = float(np.clip(np.sum(w * col * rest) / np.sum(w * col * col), -d.nz_max, d.nz_max))
+        return np.array([delta, nz])

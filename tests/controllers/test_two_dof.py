@@ -132,3 +132,22 @@ def test_controller_tracks_on_the_nominal_bicycle():
         x = x + 1e-3 * (A @ x + B @ u)
         errs.append(np.abs(x - xd).max())
     assert errs[-1] < 1e-4 * np.abs(xd).max() + 1e-9  # exp(-5 * 3 s) ~ 3e-7 of the step
+
+
+def test_saturation_aware_allocation_prefers_yaw():
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p.as_nominal(), yaw_priority=50.0)
+    ctl = TwoDofController(d)
+    v = 20.0
+    _, B = lateral_matrices(p.as_nominal(), v)
+    u = np.array([0.05, 3.0 * d.nz_max])  # a yaw moment the motors cannot make
+    out = ctl._allocate(u, v)
+    assert out[1] == pytest.approx(d.nz_max, rel=1e-12)
+    # the steer is re-chosen to realise the demanded yaw acceleration as closely as the weights say
+    demand = B @ u
+    w = np.array([1.0, 50.0])
+    col, rest = B[:, 0], demand - B[:, 1] * d.nz_max
+    assert out[0] == pytest.approx(np.sum(w * col * rest) / np.sum(w * col * col), rel=1e-12)
+    assert out[0] > u[0]  # more steer into the turn makes up for the missing yaw moment
+    small = np.array([0.01, 100.0])
+    np.testing.assert_array_equal(ctl._allocate(small, v), small)  # no saturation: exact inverse kept
