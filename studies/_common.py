@@ -37,3 +37,11 @@ def save_figure(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
     atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=110), mode="wb")
     plt.close(fig)
+
+
+def cli(main) -> None:
+    """``python -m studies.NAME OUT_DIR [--quick]``: run a study and print its rows."""
+    import sys
+    args = [a for a in sys.argv[1:] if a != "--quick"]
+    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
+        print(row)

@@ -12,14 +12,12 @@ Run: ``python -m studies.control_fig7 OUT_DIR [--quick]``
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from plants import load_vehicle
 from plants.disturbances import Disturbances, default_wind
 from plants.maneuvers import step_steer
-from studies._common import out_dir, save_figure, write_table
+from studies._common import cli, out_dir, save_figure, write_table
 from toolkit.simulator import simulate
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
@@ -66,6 +64,4 @@ def main(out, quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
-        print(row)
+    cli(main)

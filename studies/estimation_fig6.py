@@ -11,15 +11,13 @@ Run: ``python -m studies.estimation_fig6 OUT_DIR [--quick]``
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from plants import load_vehicle
 from plants.disturbances import Disturbances, default_wind
 from plants.maneuvers import sine_lane_change
 from plants.sensors import SensorConfig
-from studies._common import out_dir, save_figure, write_table
+from studies._common import cli, out_dir, save_figure, write_table
 from toolkit.estimation import design_filter, run_estimator
 from toolkit.simulator import simulate
 
@@ -72,6 +70,4 @@ def main(out, quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
-        print(row)
+    cli(main)

@@ -10,13 +10,11 @@ Run: ``python -m studies.estimation_intersample OUT_DIR [--quick]``
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from plants import load_vehicle
 from plants.maneuvers import sine_lane_change
-from studies._common import out_dir, save_figure, write_table
+from studies._common import cli, out_dir, save_figure, write_table
 from toolkit.estimation import design_filter, run_estimator
 from toolkit.simulator import simulate
 
@@ -59,6 +57,4 @@ def main(out, quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
-        print(row)
+    cli(main)

@@ -10,9 +10,7 @@ Run: ``python -m studies.estimation_robustness OUT_DIR [--quick]``
 
 from __future__ import annotations
 
-import sys
-
-from studies._common import out_dir, write_table
+from studies._common import cli, out_dir, write_table
 from toolkit.estimation.evaluate import robustness_table
 
 
@@ -24,6 +22,4 @@ def main(out, quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
-        print(row)
+    cli(main)
