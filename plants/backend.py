@@ -40,14 +40,10 @@ def _ca_zeros(n, m=1):
     return ca.SX.zeros(n, m)
 
 
-def _np_column(items):
-    return np.array([float(i) for i in items]) if all(np.ndim(i) == 0 for i in items) else np.stack(items)
-
-
 NUMPY = SimpleNamespace(
     name="numpy", zeros=_np_zeros, eye=np.eye, if_else=np.where, outer=np.outer,
     reshape=lambda v, n, m: np.reshape(v, (n, m), order="F"), flatten=lambda M: np.ravel(M, order="F"),
-    concat=lambda items: np.concatenate([np.atleast_1d(i) for i in items]), floor=np.floor,
+    concat=lambda items: np.concatenate([np.atleast_1d(i) for i in items]),
     sin=np.sin, cos=np.cos, tan=np.tan, arctan=np.arctan, arctan2=np.arctan2,
     sqrt=np.sqrt, tanh=np.tanh, exp=np.exp, fabs=np.abs, fmax=np.maximum, fmin=np.minimum,
     stack=_np_stack,
@@ -56,7 +52,7 @@ NUMPY = SimpleNamespace(
 CASADI = SimpleNamespace(
     name="casadi", zeros=_ca_zeros, eye=ca.SX.eye, if_else=ca.if_else, outer=lambda a, b: ca.mtimes(a, b.T),
     reshape=lambda v, n, m: ca.reshape(v, n, m), flatten=lambda M: ca.vec(M),
-    concat=lambda items: ca.vertcat(*items), floor=ca.floor,
+    concat=lambda items: ca.vertcat(*items),
     sin=ca.sin, cos=ca.cos, tan=ca.tan, arctan=ca.atan, arctan2=ca.atan2,
     sqrt=ca.sqrt, tanh=ca.tanh, exp=ca.exp, fabs=ca.fabs, fmax=ca.fmax, fmin=ca.fmin,
     stack=_ca_stack,

@@ -217,11 +217,6 @@ class VehicleParams:
 VEHICLE_KEYS = tuple(f.name for f in fields(VehicleParams) if f.name not in ("name", "source"))
 
 
-def field_docs() -> dict[str, str]:
-    """Field name -> documentation string with unit."""
-    return {f.name: f.metadata["doc"] for f in fields(VehicleParams)}
-
-
 def parse_vehicle_toml(text: str, origin: str) -> VehicleParams:
     """Parse TOML text into :class:`VehicleParams`; errors name ``origin`` and the key."""
     try:
