@@ -38,3 +38,10 @@ def test_control_fig7(tmp_path):
     # measured 0.59 vs 2.93 deg/s (quick) and 0.40 vs 2.09 (full run)
     assert rows["two-dof"]["yaw_rate_rms_err_deg_s"] < 0.3 * rows["none"]["yaw_rate_rms_err_deg_s"]
     assert rows["two-dof"]["beta_rms_err_deg"] < rows["none"]["beta_rms_err_deg"]
+
+
+def test_control_fmvss126_quick(tmp_path):
+    from studies import control_fmvss126
+    rows = {r["controller"]: r for r in control_fmvss126.main(tmp_path, quick=True)}
+    assert rows["none"]["pass"] is False  # the uncontrolled compact EV spins from 5 A
+    assert (tmp_path / "fmvss126_two-dof.csv").exists() and (tmp_path / "fmvss126_summary.md").exists()
