@@ -85,7 +85,8 @@ def cmd_estimate(args) -> int:
     from .logio import read_log_csv, write_log_table
 
     p = load_vehicle(args.vehicle)
-    log = read_log_csv(args.log).without_truth()
+    needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay")  # plus the schema's required columns
+    log = read_log_csv(args.log, columns=needed).without_truth()
     d = design_filter(args.method, p, latency=args.gps_latency)
     est = run_estimator(d, log)
     cols = {"t": est.t}

@@ -116,6 +116,12 @@ def compiler() -> str | None:
     return None
 
 
+def cached_library(key: str) -> Path | None:
+    """The compiled library for ``key`` if it is already in the cache (and a compiler exists)."""
+    lib = _cache_dir() / f"evstab_{key}.so"
+    return lib if (compiler() is not None and lib.is_file()) else None
+
+
 def compile_library(funcs: list, key: str) -> Path | None:
     """Generate C for casadi ``funcs``, compile to a cached shared library; None without a compiler."""
     cc = compiler()
@@ -150,7 +156,7 @@ class CFunction:
     column-major, so an (n, N) casadi matrix is an (N, n) C-ordered numpy array.
     """
 
-    def __init__(self, lib: ctypes.CDLL, name: str, fn: ca.Function):
+    def __init__(self, lib: ctypes.CDLL, name: str, fn: ca.Function | None = None):
         self.fn = fn
         work = getattr(lib, name + "_work")
         szs = [ctypes.c_longlong() for _ in range(4)]
@@ -165,7 +171,10 @@ class CFunction:
         self._call = getattr(lib, name)
         self._call.restype = ctypes.c_int
         self._call.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
-        self.n_in, self.n_out = fn.n_in(), fn.n_out()
+        for what in ("n_in", "n_out"):
+            f = getattr(lib, f"{name}_{what}")
+            f.restype = ctypes.c_longlong
+            setattr(self, what, int(f()))
 
     def __call__(self, args: list, results: list) -> None:
         """``args``/``results`` are float64 C-contiguous arrays (or ctypes addresses) in casadi's layout."""

@@ -120,23 +120,29 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
     return v
 
 
-def read_log_csv(path: str | Path) -> DriveLog:
+def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None) -> DriveLog:
     """Read and validate a drive-log CSV (see the module docstring for the errors).
 
     A fast path (pyarrow's CSV parser) reads well-formed files; anything it does not
     accept cleanly is re-read by the strict row-by-row parser, whose error names
     the row and column.
+    ``columns`` restricts the result (and the fast parser's work) to those columns
+    plus the required ones; other columns are then neither parsed nor checked.
     """
-    fast = _read_fast(Path(path))
+    keep = None if columns is None else tuple(dict.fromkeys(REQUIRED + tuple(columns)))
+    fast = _read_fast(Path(path), keep)
     if fast is not None:
         return fast
-    return _read_strict(Path(path))
+    log = _read_strict(Path(path))
+    if keep is None:
+        return log
+    return DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
 
 
 _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
 
 
-def _read_fast(path: Path) -> DriveLog | None:
+def _read_fast(path: Path, keep: tuple[str, ...] | None = None) -> DriveLog | None:
     """pyarrow's multi-threaded CSV parser; None whenever the file is not plainly well formed."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -148,13 +154,15 @@ def _read_fast(path: Path) -> DriveLog | None:
         names = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
         if len(set(names)) != len(names) or any(not n for n in names) or any(c not in names for c in REQUIRED):
             return None
+        wanted = names if keep is None else [n for n in names if n in keep]
         table = pacsv.read_csv(
-            path, convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names},
-                                                       strings_can_be_null=True))
+            path, convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in wanted},
+                                                       strings_can_be_null=True, include_columns=wanted))
     except Exception:  # any parsing problem: the strict reader names row and column
         return None
-    if table.num_rows == 0 or table.column_names != names:
+    if table.num_rows == 0 or table.column_names != wanted:
         return None
+    names = wanted
     columns = {n: table.column(n).to_numpy(zero_copy_only=False).astype(float, copy=False) for n in names}
     for c in _NEVER_EMPTY:
         if not np.all(np.isfinite(columns[c])):

@@ -164,3 +164,27 @@ def test_commands_recorded(compact):
     r = simulate(compact, "two-track", make_maneuver("sine-with-dwell", compact, 80 / 3.6))
     assert set(r.commands) == set(COMMANDS)
     assert r.commands["drive_on"][0] == 1.0 and r.commands["drive_on"][-1] == 0.0
+
+
+def test_reading_selected_columns(tmp_path, compact):
+    from toolkit.logio import REQUIRED, read_log_csv
+    r = simulate(compact, "bicycle", make_maneuver("step-steer", compact, 50 / 3.6))
+    path = tmp_path / "log.csv"
+    r.write_csv(path)
+    full = read_log_csv(path)
+    part = read_log_csv(path, columns=("ay",))
+    assert set(part.columns) == set(REQUIRED) | {"ay"}
+    for k in part.columns:
+        np.testing.assert_array_equal(part[k], full[k])
+    # a damaged column that is not asked for is neither parsed nor reported
+    text = path.read_text().splitlines()
+    head = text[0].split(",")
+    row = text[5].split(",")
+    row[head.index("wheel_speed_fl")] = "oops"
+    text[5] = ",".join(row)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(text) + "\n")
+    assert len(read_log_csv(bad, columns=("ay",))) == len(full)
+    from toolkit.logio import LogFormatError
+    with pytest.raises(LogFormatError, match="row 6, column 'wheel_speed_fl'"):
+        read_log_csv(bad)

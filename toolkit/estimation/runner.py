@@ -19,7 +19,7 @@ import numpy as np
 
 from plants.backend import CASADI, NUMPY
 
-from ..compiled import CFunction, compile_library, source_digest
+from ..compiled import CFunction, cached_library, compile_library, compiler, source_digest
 from . import kalman, lob
 from .spec import FilterDesign
 
@@ -69,24 +69,38 @@ class CompiledFilter:
 
     def __init__(self, d: FilterDesign, backend: str = "auto"):
         self.design = d
-        self.step_fn = _step_function(d)
-        self.size = self.step_fn.size1_in(0)
-        acc = self.step_fn.mapaccum("est_acc", CHUNK)
-        z0, U = ca.MX.sym("z0", self.size), ca.MX.sym("U", len(kalman.INPUTS), CHUNK)
-        Z, Y = acc(z0, U)
-        self.chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
         self.backend = "numpy" if backend == "numpy" else "vm"
+        self._step_fn = self._chunk_fn = None
         if backend in ("auto", "c"):
             import plants.backend
             from . import spec
             src = source_digest(kalman, lob, spec, plants.backend)
-            key = hashlib.sha256(repr((d, ca.__version__, src)).encode()).hexdigest()[:20]
-            lib = compile_library([self.chunk_fn], "est_" + key)
+            key = "est_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
+            lib = cached_library(key)  # a compiled filter loads without rebuilding the casadi graph
+            if lib is None and compiler() is not None:
+                lib = compile_library([self.chunk_fn], key)
             if lib is not None:
-                self._c = CFunction(ctypes.CDLL(str(lib)), "est_chunk", self.chunk_fn)
+                self._c = CFunction(ctypes.CDLL(str(lib)), "est_chunk")
                 self.backend = "c"
             elif backend == "c":
                 raise RuntimeError("no C compiler available for backend 'c'")
+
+    @property
+    def step_fn(self) -> ca.Function:
+        """The casadi step ``(z, u) -> (z_next, y)`` (built on first use)."""
+        if self._step_fn is None:
+            self._step_fn = _step_function(self.design)
+        return self._step_fn
+
+    @property
+    def chunk_fn(self) -> ca.Function:
+        """``(z0, U) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use)."""
+        if self._chunk_fn is None:
+            acc = self.step_fn.mapaccum("est_acc", CHUNK)
+            z0, U = ca.MX.sym("z0", self.step_fn.size1_in(0)), ca.MX.sym("U", len(kalman.INPUTS), CHUNK)
+            Z, Y = acc(z0, U)
+            self._chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
+        return self._chunk_fn
 
     def run(self, U: np.ndarray, z0: np.ndarray) -> np.ndarray:
         """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS))."""
