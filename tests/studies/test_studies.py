@@ -45,3 +45,12 @@ def test_control_fmvss126_quick(tmp_path):
     rows = {r["controller"]: r for r in control_fmvss126.main(tmp_path, quick=True)}
     assert rows["none"]["pass"] is False  # the uncontrolled compact EV spins from 5 A
     assert (tmp_path / "fmvss126_two-dof.csv").exists() and (tmp_path / "fmvss126_summary.md").exists()
+
+
+def test_control_fig9(tmp_path):
+    from studies import control_fig9
+    rows = {r["controller"]: r for r in control_fig9.main(tmp_path, quick=True)}
+    assert (tmp_path / "fig9.png").exists()
+    # measured (full run): yaw-rate error 0.30 vs 1.90 deg/s, sideslip 0.34 vs 0.54 deg
+    assert rows["two-dof"]["yaw_rate_rms_err_deg_s"] < 0.3 * rows["none"]["yaw_rate_rms_err_deg_s"]
+    assert rows["two-dof"]["beta_rms_err_deg"] < rows["none"]["beta_rms_err_deg"]
