@@ -36,8 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import VehicleParams
-from plants.bicycle import lateral_matrices
+from plants import G, VehicleParams
+from plants.backend import NUMPY, unpack
+from plants.bicycle import lateral_coefficients, lateral_matrices
 
 from .reference import ReferenceModel
 
@@ -63,6 +64,8 @@ class TwoDofDesign:
     steer_max: float = np.deg2rad(35.0)
     yaw_priority: float = 4.0
     """Weight of the yaw-rate row against the sideslip row when a command saturates."""
+    beta_error_max: float = np.inf
+    """Largest sideslip error [rad] the feedback acts on (inf: no limit)."""
     disturbance_filter_tau: float = 0.0
     """First-order low-pass [s] on the disturbance estimates before rejection (0 = none)."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
@@ -97,18 +100,91 @@ class TwoDofDesign:
         return Bi, Bi @ self.kd, -Bi @ A @ self.kd, Bi @ A
 
 
-@dataclass(frozen=True)
-class ControllerState:
-    xi: np.ndarray
-    """Integral of the tracking error."""
-    xd: np.ndarray
-    """The lagged reference (beta_d, gamma_d)."""
-    dist: np.ndarray = None
-    """Low-passed disturbance estimates (d1, d2)."""
+STATE = ("xi_beta", "xi_yaw_rate", "beta_ref", "yaw_rate_ref", "dist_beta", "dist_yaw_rate")
+"""Controller state: error integrals, the lagged reference, the low-passed disturbance estimates."""
+SIGNALS = ("speed", "steer_driver", "beta", "yaw_rate", "d1", "d2", "mu", "steer_limited", "yaw_moment_limited")
+OUTPUTS = ("steer", "yaw_moment", "beta_ref", "yaw_rate_ref")
+
+
+def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
+    """One control period, written once for numpy and casadi: ``(z, sig) -> (z_next, out)``.
+
+    ``z`` per :data:`STATE`, ``sig`` per :data:`SIGNALS`, ``out`` per :data:`OUTPUTS`.
+    """
+    s = unpack(sig, SIGNALS)
+    p = d.params
+    v = s.speed
+    vm = o.fmax(v, d.min_speed)
+    # reference model (seed 003 eq. 23-24) with the friction limit, then the lag
+    L, g = p.wheelbase, p.stability_factor
+    den = 1.0 + g * vm * vm
+    kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
+    kg = vm / (L * den)
+    beta_ss, gamma_ss = kb * s.steer_driver, kg * s.steer_driver
+    limit = d.friction_margin * s.mu * G / vm
+    mag = o.fabs(gamma_ss)
+    scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
+    beta_ss, gamma_ss = beta_ss * scale, gamma_ss * scale
+    lag = float(np.exp(-d.dt / d.reference_tau))
+    xb, xr = z[2], z[3]
+    xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
+    xb_next, xr_next = beta_ss + (xb - beta_ss) * lag, gamma_ss + (xr - gamma_ss) * lag
+    # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d)
+    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
+    e_b = o.fmin(o.fmax(xb - s.beta, -d.beta_error_max), d.beta_error_max) if np.isfinite(d.beta_error_max) \
+        else xb - s.beta
+    e_r = xr - s.yaw_rate
+    if d.disturbance_rejection:
+        if d.disturbance_filter_tau > 0:
+            k = 1.0 - float(np.exp(-d.dt / d.disturbance_filter_tau))
+            dist_b, dist_r = z[4] + (s.d1 - z[4]) * k, z[5] + (s.d2 - z[5]) * k
+        else:
+            dist_b, dist_r = s.d1, s.d2
+    else:
+        dist_b, dist_r = 0.0 * v, 0.0 * v
+    kb_, kr_ = d.k_beta, d.k_gamma
+    xi_b, xi_r = z[0], z[1]
+    v1 = xb_dot - (a11 * xb + a12 * xr) + kb_ * e_b - (a11 * kb_ * xi_b + a12 * kr_ * xi_r) - dist_b
+    v2 = xr_dot - (a21 * xb + a22 * xr) + kr_ * e_r - (a21 * kb_ * xi_b + a22 * kr_ * xi_r) - dist_r
+    delta = v1 / b11
+    nz = (v2 - b21 * delta) / b22
+    delta, nz = allocate(d, delta, nz, b11, b21, b22, o)
+    low = v < d.min_speed
+    delta = o.if_else(low, s.steer_driver, delta)
+    nz = o.if_else(low, 0.0, nz)
+    # conditional integration: hold xi in a channel whose command is limited; reset at low speed
+    xi_b_next = o.if_else(low, 0.0, o.if_else(s.steer_limited > 0.5, xi_b, xi_b + d.dt * e_b))
+    xi_r_next = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, xi_r, xi_r + d.dt * e_r))
+    z_next = o.stack([xi_b_next, xi_r_next, xb_next, xr_next, o.if_else(low, 0.0, dist_b),
+                      o.if_else(low, 0.0, dist_r)])
+    return z_next, o.stack([delta, nz, xb, xr])
+
+
+def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY):
+    """Saturation-aware allocation of ``u = (delta, N_z)``, numpy or casadi.
+
+    When a command exceeds its limit it is clipped and the other is chosen to realise
+    the demanded ``B u`` in weighted least squares, the yaw-rate row weighted
+    ``yaw_priority`` times the sideslip row (yaw stability first). Without
+    saturation the exact inverse is kept.
+    """
+    w1, w2 = 1.0, d.yaw_priority
+    v1, v2 = b11 * delta, b21 * delta + b22 * nz
+    smax, nmax = d.steer_max, d.nz_max
+    nz_a = o.fmin(o.fmax(nz, -nmax), nmax)
+    delta_a = (w1 * b11 * v1 + w2 * b21 * (v2 - b22 * nz_a)) / (w1 * b11 * b11 + w2 * b21 * b21)
+    delta_a = o.fmin(o.fmax(delta_a, -smax), smax)
+    delta_b = o.fmin(o.fmax(delta, -smax), smax)
+    nz_b = o.fmin(o.fmax((v2 - b21 * delta_b) / b22, -nmax), nmax)
+    nz_sat = o.fabs(nz) > nmax
+    d_sat = o.fabs(delta) > smax
+    out_delta = o.if_else(nz_sat, delta_a, o.if_else(d_sat, delta_b, delta))
+    out_nz = o.if_else(nz_sat, nz_a, o.if_else(d_sat, nz_b, nz))
+    return out_delta, out_nz
 
 
 class TwoDofController:
-    """The controller in the simulator's step protocol.
+    """The controller in the simulator's step protocol (numpy around :func:`control_law`).
 
     Signals in: ``speed``, ``steer_driver`` (road-wheel angle command [rad]),
     ``beta``, ``yaw_rate`` (estimates or truth), ``d1``, ``d2`` (disturbance
@@ -120,53 +196,18 @@ class TwoDofController:
     def __init__(self, design: TwoDofDesign):
         self.design = design
 
-    def initial_state(self) -> ControllerState:
-        return ControllerState(np.zeros(2), np.zeros(2), np.zeros(2))
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(len(STATE))
 
-    def step(self, state: ControllerState, t: float, s: dict):
+    def step(self, state, t: float, s: dict):
         d = self.design
-        v = s["speed"]
-        x_ss = np.array(d.reference(s["steer_driver"], v, s.get("mu", d.params.mu)))
-        xd = state.xd
-        xd_dot = (x_ss - xd) / d.reference_tau
-        xd_next = x_ss + (xd - x_ss) * np.exp(-d.dt / d.reference_tau)
-        beta_d, gamma_d = float(xd[0]), float(xd[1])
-        if v < d.min_speed:
-            out = {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
-            return ControllerState(np.zeros(2), xd_next, np.zeros(2)), out
-        Bi, Kp, Ki, BiA = d.gains(v)
-        e = xd - np.array([s["beta"], s["yaw_rate"]])
-        d_raw = np.array([s.get("d1", 0.0), s.get("d2", 0.0)]) if d.disturbance_rejection else np.zeros(2)
-        prev = state.dist if state.dist is not None else np.zeros(2)
-        dist = d_raw if d.disturbance_filter_tau <= 0 else prev + (d_raw - prev) * (1 - np.exp(-d.dt / d.disturbance_filter_tau))
-        u_ff = Bi @ xd_dot - BiA @ xd
-        u = Kp @ e + Ki @ state.xi + u_ff - Bi @ dist
-        u = self._allocate(u, v)
-        # conditional integration: hold xi in a channel whose command is limited
-        de = e * d.dt
-        limited = np.array([s.get("steer_limited", 0.0), s.get("yaw_moment_limited", 0.0)]) > 0.5
-        xi = state.xi + np.where(limited, 0.0, de)
-        out = {"steer": float(u[0]), "yaw_moment": float(u[1]), "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
-        return ControllerState(xi, xd_next, dist), out
+        sig = np.array([s["speed"], s["steer_driver"], s["beta"], s["yaw_rate"], s.get("d1", 0.0), s.get("d2", 0.0),
+                        s.get("mu", d.params.mu), s.get("steer_limited", 0.0), s.get("yaw_moment_limited", 0.0)])
+        z, out = control_law(d, np.asarray(state, float), sig)
+        return z, {name: float(out[i]) for i, name in enumerate(OUTPUTS)}
 
     def _allocate(self, u: np.ndarray, speed: float) -> np.ndarray:
-        """Saturation-aware allocation: when one command exceeds its limit, clip it and choose the
-        other to realise the demanded ``B u`` in weighted least squares, the yaw-rate row weighted
-        ``yaw_priority`` times the sideslip row (yaw stability comes first). Without saturation the
-        exact inverse is kept."""
         d = self.design
-        delta, nz = float(u[0]), float(u[1])
-        if abs(delta) <= d.steer_max and abs(nz) <= d.nz_max:
-            return u
-        _, B = lateral_matrices(d.params, max(speed, d.min_speed))
-        v = B @ u
-        w = np.array([1.0, d.yaw_priority])
-        if abs(nz) > d.nz_max:
-            nz = float(np.clip(nz, -d.nz_max, d.nz_max))
-            col, rest = B[:, 0], v - B[:, 1] * nz
-            delta = float(np.clip(np.sum(w * col * rest) / np.sum(w * col * col), -d.steer_max, d.steer_max))
-        if abs(delta) > d.steer_max:
-            delta = float(np.clip(delta, -d.steer_max, d.steer_max))
-            col, rest = B[:, 1], v - B[:, 0] * delta
-            nz = float(np.clip(np.sum(w * col * rest) / np.sum(w * col * col), -d.nz_max, d.nz_max))
-        return np.array([delta, nz])
+        _, _, _, _, b11, b21, b22 = lateral_coefficients(d.params, max(speed, d.min_speed))
+        delta, nz = allocate(d, float(u[0]), float(u[1]), b11, b21, b22)
+        return np.array([float(delta), float(nz)])
