@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plants import VehicleParams
+from plants.backend import NUMPY, unpack
 
 
 @dataclass(frozen=True)
@@ -49,12 +50,41 @@ def allocate(yaw_moment: float, t_mean: float, p: VehicleParams, torque_max: flo
             "limited": bool(abs(dt_ach - dt_req) > 1e-9 * max(1.0, abs(dt_req)))}
 
 
+STATE = ("steer", "torque_diff")
+SIGNALS = ("steer_cmd", "yaw_moment_cmd", "t_mean", "dt")
+OUTPUTS = ("steer", "yaw_moment", "steer_limited", "yaw_moment_limited")
+
+
+def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, sig, o=NUMPY):
+    """One sample of the steer and motor actuators, numpy or casadi: ``(z, sig) -> (z_next, out)``."""
+    steer, t_diff = z[0], z[1]
+    s = unpack(sig, SIGNALS)
+    target = o.fmin(o.fmax(s.steer_cmd, -lim.steer_max), lim.steer_max)
+    rate = (target - steer) / lim.steer_tau
+    rate_c = o.fmin(o.fmax(rate, -lim.steer_rate_max), lim.steer_rate_max)
+    steer_new = o.fmin(o.fmax(steer + s.dt * rate_c, -lim.steer_max), lim.steer_max)
+    steer_limited = o.if_else(o.fabs(s.steer_cmd) > lim.steer_max, 1.0,
+                              o.if_else(o.fabs(rate) > lim.steer_rate_max, 1.0, 0.0))
+    # allocation (as :func:`allocate`): common torque kept, difference cut to the room left
+    t_mean = o.fmin(o.fmax(s.t_mean, -torque_max), torque_max)
+    dt_req = s.yaw_moment_cmd * p.wheel_radius / p.track_rear
+    room = torque_max - o.fabs(t_mean)
+    want = o.fmin(o.fmax(dt_req, -room), room)
+    step_max = lim.torque_rate_max * s.dt
+    t_diff_new = o.fmin(o.fmax(want, t_diff - step_max), t_diff + step_max)
+    cut = o.fabs(want - dt_req) > 1e-9 * o.fmax(1.0, o.fabs(dt_req))
+    slow = o.fabs(t_diff_new - want) > 1e-9 * o.fmax(1.0, o.fabs(want))
+    limited = o.if_else(cut, 1.0, o.if_else(slow, 1.0, 0.0))
+    achieved = t_diff_new * p.track_rear / p.wheel_radius
+    return o.stack([steer_new, t_diff_new]), o.stack([steer_new, achieved, steer_limited, limited])
+
+
 class Actuators:
-    """Steer and yaw-moment actuators in the step protocol.
+    """Steer and yaw-moment actuators in the step protocol (numpy around :func:`actuator_law`).
 
     Signals in: ``steer`` and ``yaw_moment`` commands, ``t_mean`` (the driver's
     mean rear torque, 0 when coasting), ``dt``. Outputs: applied ``steer``,
-    ``yaw_moment`` (achieved), ``torque_rl``, ``torque_rr`` and the limit flags.
+    ``yaw_moment`` (achieved), the limit flags and the command ``yaw_moment_cmd``.
     """
 
     def __init__(self, params: VehicleParams, limits: ActuatorLimits = ActuatorLimits()):
@@ -62,23 +92,11 @@ class Actuators:
         self.torque_max = limits.torque_max if limits.torque_max is not None else (params.max_motor_torque or 1e9)
 
     def initial_state(self, steer0: float = 0.0):
-        return (float(steer0), 0.0)
+        return np.array([float(steer0), 0.0])
 
     def step(self, state, t, s):
-        steer, t_diff = state
-        dt = s["dt"]
-        lim = self.lim
-        target = float(np.clip(s["steer"], -lim.steer_max, lim.steer_max))
-        rate = (target - steer) / lim.steer_tau
-        rate_c = float(np.clip(rate, -lim.steer_rate_max, lim.steer_rate_max))
-        steer_new = float(np.clip(steer + dt * rate_c, -lim.steer_max, lim.steer_max))
-        steer_limited = abs(s["steer"]) > lim.steer_max or abs(rate) > lim.steer_rate_max
-        alloc = allocate(s["yaw_moment"], s.get("t_mean", 0.0), self.p, self.torque_max)
-        want = (alloc["torque_rr"] - alloc["torque_rl"]) / 2.0
-        step_max = lim.torque_rate_max * dt
-        t_diff_new = float(np.clip(want, t_diff - step_max, t_diff + step_max))
-        achieved = t_diff_new * self.p.track_rear / self.p.wheel_radius
-        limited = alloc["limited"] or abs(t_diff_new - want) > 1e-9 * max(1.0, abs(want))
-        out = {"steer": steer_new, "yaw_moment": achieved, "steer_limited": float(steer_limited),
-               "yaw_moment_limited": float(limited), "yaw_moment_cmd": s["yaw_moment"]}
-        return (steer_new, t_diff_new), out
+        sig = np.array([s["steer"], s["yaw_moment"], s.get("t_mean", 0.0), s["dt"]])
+        z, out = actuator_law(self.p, self.lim, self.torque_max, np.asarray(state, float), sig)
+        res = {name: float(out[i]) for i, name in enumerate(OUTPUTS)}
+        res["yaw_moment_cmd"] = s["yaw_moment"]
+        return z, res
