@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .backend import NUMPY
 from .errors import ModelError
 from .params import G
 
@@ -119,6 +120,55 @@ def draw_noise(cfg: SensorConfig, seed: int, n: int) -> dict:
             "gps": rng["gps"].standard_normal((2, n)), "heading": rng["heading"].standard_normal(n)}
 
 
+def readings(tr: dict, inp: dict, nz: dict, gps: tuple, fix, cfg: SensorConfig, wheel_radius: float | None,
+             o=NUMPY) -> dict:
+    """The sensor equations, numpy (arrays) or casadi (one sample): truth -> readings.
+
+    ``tr`` truth signals, ``inp`` applied ``steer``/``yaw_moment`` and road ``bank``,
+    ``nz`` the standard-normal draws of these samples, ``gps`` the truth the fixes
+    describe (``yaw, vx, vy, yaw_rate`` at ``t - gps_latency``), ``fix`` 1 where a fix
+    is due. GPS values are returned with ``gps_valid`` (fix due and ground speed
+    above ``gps_min_speed``) instead of NaN, so that casadi can carry them.
+    """
+    out = {
+        "steer": inp["steer"] + cfg.steer_noise * nz["steer"],
+        "yaw_moment": inp["yaw_moment"],
+        "yaw_rate": (1.0 + cfg.gyro_scale_error) * tr["yaw_rate"] + cfg.gyro_bias + cfg.gyro_noise * nz["gyro"],
+        "roll_rate": tr["roll_rate"] + cfg.roll_gyro_bias + cfg.roll_gyro_noise * nz["roll_gyro"],
+    }
+    # Accelerometers on the sprung mass: specific force, gravity enters through roll + bank.
+    out["ax"] = tr["ax"] + cfg.accel_bias_x + cfg.accel_noise * nz["accel_x"]
+    out["ay"] = (tr["ay"] * o.cos(tr["roll"]) + G * o.sin(tr["roll"] + inp["bank"]) + cfg.accel_bias_y
+                 + cfg.accel_noise * nz["accel_y"])
+    # Wheel speeds and the longitudinal speed from the non-driven (front) wheels.
+    for i, w in enumerate(("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")):
+        out[w] = tr[w] + cfg.wheel_speed_noise * nz["wheel"][i]
+    v_front = tr["vx"] if wheel_radius is None else 0.5 * (tr["wheel_speed_fl"] + tr["wheel_speed_fr"]) * wheel_radius
+    out["speed"] = v_front + cfg.speed_noise * nz["speed"]
+    # GPS: the antenna's velocity, rotated to the earth frame, with noise there
+    yaw, vx, vy, r = gps
+    vx_a, vy_a = vx - r * cfg.gps_antenna_y, vy + r * cfg.gps_antenna_x
+    ve = vx_a * o.cos(yaw) - vy_a * o.sin(yaw)
+    vn = vx_a * o.sin(yaw) + vy_a * o.cos(yaw)
+    sigma = cfg.gps_velocity_noise * cfg.gps_hdop
+    ve_m, vn_m = ve + sigma * nz["gps_e"], vn + sigma * nz["gps_n"]
+    ground = o.sqrt(ve_m * ve_m + vn_m * vn_m)
+    course = o.arctan2(vn_m, ve_m)
+    out["gps_valid"] = fix * o.if_else(ground >= cfg.gps_min_speed, 1.0, 0.0)
+    out["gps_fix"] = fix
+    out["gps_course"] = o.arctan2(o.sin(course), o.cos(course))
+    out["gps_speed"] = ground
+    out["gps_heading"] = yaw + cfg.heading_noise * nz["heading"]
+    return out
+
+
+def _noise_at(noise: dict, idx) -> dict:
+    return {"steer": noise["steer"][idx], "gyro": noise["gyro"][idx], "roll_gyro": noise["roll_gyro"][idx],
+            "accel_x": noise["accel"][0, idx], "accel_y": noise["accel"][1, idx],
+            "wheel": [noise["wheel"][i, idx] for i in range(4)], "speed": noise["speed"][idx],
+            "gps_e": noise["gps"][0, idx], "gps_n": noise["gps"][1, idx], "heading": noise["heading"][idx]}
+
+
 def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: int,
             wheel_radius: float | None, noise: dict | None = None, index=None) -> dict:
     """Sensor readings for a run (or, with ``index``, for the samples ``index`` of it).
@@ -135,49 +185,21 @@ def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: i
     idx = np.arange(n) if index is None else np.atleast_1d(np.asarray(index))
     last = int(idx.max()) + 1
     tr = {k: np.asarray(v, float)[idx] for k, v in truth.items()}
-    inp = {k: np.broadcast_to(np.asarray(v, float), (n,))[idx] if np.ndim(v) else np.full(len(idx), float(v))
+    inp = {k: (np.broadcast_to(np.asarray(v, float), (n,))[idx] if np.ndim(v) else np.full(len(idx), float(v)))
            for k, v in inputs.items()}
-    r = tr["yaw_rate"]
-    out = {
-        "speed": None, "steer": inp["steer"] + cfg.steer_noise * noise["steer"][idx],
-        "yaw_moment": inp["yaw_moment"],
-        "yaw_rate": (1.0 + cfg.gyro_scale_error) * r + cfg.gyro_bias + cfg.gyro_noise * noise["gyro"][idx],
-        "roll_rate": tr["roll_rate"] + cfg.roll_gyro_bias + cfg.roll_gyro_noise * noise["roll_gyro"][idx],
-    }
-    # Accelerometers on the sprung mass: specific force, gravity enters through roll + bank.
-    tilt = tr["roll"] + inp.get("bank", 0.0)
-    out["ax"] = tr["ax"] + cfg.accel_bias_x + cfg.accel_noise * noise["accel"][0, idx]
-    out["ay"] = (tr["ay"] * np.cos(tr["roll"]) + G * np.sin(tilt) + cfg.accel_bias_y
-                 + cfg.accel_noise * noise["accel"][1, idx])
-    # Wheel speeds and the longitudinal speed from the non-driven (front) wheels.
-    for i, wname in enumerate(("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")):
-        out[wname] = tr[wname] + cfg.wheel_speed_noise * noise["wheel"][i, idx]
-    if wheel_radius is not None and np.all(np.isfinite(tr["wheel_speed_fl"])):
-        v_front = 0.5 * (tr["wheel_speed_fl"] + tr["wheel_speed_fr"]) * wheel_radius
-    else:
-        v_front = tr["vx"]
-    out["speed"] = v_front + cfg.speed_noise * noise["speed"][idx]
-    # GPS: each fix describes the antenna's motion gps_latency s before its row.
-    fix = gps_fix_mask(t, cfg)[idx]
+    inp.setdefault("bank", np.zeros(len(idx)))
+    if wheel_radius is not None and not np.all(np.isfinite(tr["wheel_speed_fl"])):
+        wheel_radius = None  # models without wheels: the speed sensor reads vx
     t_meas = t[idx] - cfg.gps_latency
     th = t[:last]
-    interp = (lambda sig: np.interp(t_meas, th, np.asarray(sig, float)[:last]))
-    yaw_c = interp(truth["yaw"])
-    vx_a = interp(np.asarray(truth["vx"])[:last] - np.asarray(truth["yaw_rate"])[:last] * cfg.gps_antenna_y)
-    vy_a = interp(np.asarray(truth["vy"])[:last] + np.asarray(truth["yaw_rate"])[:last] * cfg.gps_antenna_x)
-    # rotate the antenna velocity into the earth frame, add noise there
-    ve = vx_a * np.cos(yaw_c) - vy_a * np.sin(yaw_c)
-    vn = vx_a * np.sin(yaw_c) + vy_a * np.cos(yaw_c)
-    sigma = cfg.gps_velocity_noise * cfg.gps_hdop
-    ve_m, vn_m = ve + sigma * noise["gps"][0, idx], vn + sigma * noise["gps"][1, idx]
-    ground = np.hypot(ve_m, vn_m)
-    course = wrap_angle(np.arctan2(vn_m, ve_m))
-    course = np.where(ground >= cfg.gps_min_speed, course, np.nan)
+    gps = tuple(np.interp(t_meas, th, np.asarray(truth[k], float)[:last]) for k in ("yaw", "vx", "vy", "yaw_rate"))
+    fix = gps_fix_mask(t, cfg)[idx].astype(float)
+    out = readings(tr, inp, _noise_at(noise, idx), gps, fix, cfg, wheel_radius)
+    valid, fixed = out.pop("gps_valid") > 0.5, out.pop("gps_fix") > 0.5
     nan = np.full(len(idx), np.nan)
-    out["gps_course"] = np.where(fix, course, nan)
-    out["gps_speed"] = np.where(fix, ground, nan)
-    out["gps_hdop"] = np.where(fix, cfg.gps_hdop, nan)
-    out["gps_sats"] = np.where(fix, float(cfg.gps_sats), nan)
-    heading = wrap_angle(yaw_c + cfg.heading_noise * noise["heading"][idx])
-    out["gps_heading"] = np.where(fix, heading, nan)
+    out["gps_course"] = np.where(valid, out["gps_course"], nan)
+    out["gps_speed"] = np.where(fixed, out["gps_speed"], nan)
+    out["gps_hdop"] = np.where(fixed, cfg.gps_hdop, nan)
+    out["gps_sats"] = np.where(fixed, float(cfg.gps_sats), nan)
+    out["gps_heading"] = np.where(fixed, wrap_angle(out["gps_heading"]), nan)
     return out
