@@ -49,6 +49,7 @@ class LoopSpec:
     estimator: str | None
     sensors: SensorConfig
     mu: float
+    design: TwoDofDesign | None = None
 
 
 def _noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
@@ -64,7 +65,7 @@ def _build(spec: LoopSpec):
     n_sub = compiled_plant(model, p, spec.dt).n_sub
     plant_step, names = build_step(model, p, spec.dt, n_sub)
     est = None if spec.controller == "two-dof-true" else design_filter(spec.estimator, p, dt=spec.dt)
-    ctl = TwoDofDesign(p.as_nominal(), dt=spec.dt)
+    ctl = spec.design if spec.design is not None else TwoDofDesign(p.as_nominal(), dt=spec.dt)
     lim = ActuatorLimits()
     tmax = lim.torque_max if lim.torque_max is not None else (p.max_motor_torque or 1e9)
     nx, nt = len(model.states), len(TRUTH)
@@ -135,7 +136,8 @@ def _compiled(spec: LoopSpec):
 
 def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str = "two-track",
                       controller: str = "two-dof", estimator: str = "dakf", sensors: SensorConfig | None = None,
-                      disturbances: Disturbances | None = None, seed: int = 0, dt: float = 1e-3) -> dict:
+                      disturbances: Disturbances | None = None, seed: int = 0, dt: float = 1e-3,
+                      design: TwoDofDesign | None = None) -> dict:
     """Run the stability loop compiled; returns ``t``, ``truth`` and ``commands`` (as the simulator names them)."""
     if not maneuver.open_loop:
         raise ValueError("the compiled loop takes open-loop steer manoeuvres (no path driver)")
@@ -144,7 +146,7 @@ def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str =
         raise ValueError("the compiled loop supports zero GPS latency only")
     disturbances = disturbances or Disturbances(friction=Friction(mu=params.mu))
     spec = LoopSpec(plant, params, float(dt), controller, None if controller == "two-dof-true" else estimator,
-                    sensors, disturbances.friction.mu)
+                    sensors, disturbances.friction.mu, design)
     step, chunk, names, sizes, est, nin, cf = _compiled(spec)
     model = get_plant(plant)
     n = int(round(maneuver.duration / dt))
