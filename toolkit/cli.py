@@ -109,9 +109,14 @@ def cmd_fmvss126(args) -> int:
     from .logio import atomic_write
     from pathlib import Path
 
+    from controllers.two_dof import TwoDofDesign
+
     p = load_vehicle(args.vehicle)
+    design = TwoDofDesign(p.as_nominal(), k_beta=args.k_beta, k_gamma=args.k_gamma, yaw_priority=args.yaw_priority,
+                          reference_tau=args.reference_tau, friction_margin=args.friction_margin,
+                          disturbance_filter_tau=args.disturbance_filter)
     a_deg, rows, verdict = run_series(p, args.controller, args.estimator, args.mu, quick=args.quick,
-                                      seed=args.seed)
+                                      seed=args.seed, design=design)
     out = Path(args.out)
     keys = list(rows[0])
     lines = [",".join(keys)] + [",".join(str(r[k]).lower() if isinstance(r[k], bool) else
@@ -183,6 +188,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--quick", action="store_true", help="only the first two amplitudes at or above 5 A")
+    sp.add_argument("--k-beta", type=_positive, default=5.0, help="model-following pole for sideslip [rad/s]")
+    sp.add_argument("--k-gamma", type=_positive, default=5.0, help="model-following pole for yaw rate [rad/s]")
+    sp.add_argument("--yaw-priority", type=_positive, default=4.0, help="yaw weight when a command saturates")
+    sp.add_argument("--reference-tau", type=_positive, default=0.1, help="reference lag [s]")
+    sp.add_argument("--friction-margin", type=_positive, default=0.85, help="yaw-rate reference limit, share of mu g / v")
+    sp.add_argument("--disturbance-filter", type=_nonneg, default=0.0, help="low-pass on the disturbance estimates [s]")
     sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")
     sp.set_defaults(func=cmd_fmvss126)
     sp = sub.add_parser("score-swd", help="score a recorded or simulated sine-with-dwell log (FMVSS 126)")

@@ -137,8 +137,15 @@ def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, 
 
 
 def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu: float | None = None,
-               plant: str = "two-track", seed: int = 0, a_deg: float | None = None, quick: bool = False):
-    """The sine-with-dwell series. Returns (A in deg, rows, verdict)."""
+               plant: str = "two-track", seed: int = 0, a_deg: float | None = None, quick: bool = False,
+               design=None, compiled: bool = True):
+    """The sine-with-dwell series. Returns (A in deg, rows, verdict).
+
+    ``controller`` is ``none``, ``yaw-pi`` or ``two-dof`` (``design``: a
+    :class:`controllers.two_dof.TwoDofDesign`, default the paper's). With
+    ``compiled`` the 2-DOF loop runs as one compiled rollout per run
+    (:mod:`toolkit.closed_loop`, equal to the Python-stepped loop to rounding).
+    """
     mu = p.mu if mu is None else mu
     a_deg = find_a(p, plant, mu, seed=seed) if a_deg is None else a_deg
     amps = amplitudes(a_deg)
@@ -148,12 +155,22 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
     for amp in amps:
         for direction, label in ((1.0, "left"), (-1.0, "right")):
             man = sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio)
-            r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=seed,
-                         controller=controller if controller != "none" else None, estimator=estimator)
-            hw = r.commands.get("steer_driver", r.commands["steer"]) * p.steering_ratio
-            if controller == "none":
-                hw = man.steer(r.t) * p.steering_ratio
-            sc = score_swd(r.t, hw, r.truth["yaw_rate"], r.truth["ay"])
+            dist = Disturbances(friction=Friction(mu=mu))
+            hw = man.steer(np.arange(int(round(man.duration / 1e-3))) * 1e-3) * p.steering_ratio
+            if controller == "two-dof" and compiled:
+                from .closed_loop import compiled_loop_run
+                r = compiled_loop_run(p, man, plant=plant, estimator=estimator, disturbances=dist, seed=seed,
+                                      design=design)
+                t, yaw_rate, ay = r["t"], r["truth"]["yaw_rate"], r["truth"]["ay"]
+            else:
+                ctl = controller
+                if controller == "two-dof" and design is not None:
+                    from controllers.two_dof import TwoDofController
+                    ctl = TwoDofController(design)
+                r = simulate(p, plant, man, disturbances=dist, seed=seed,
+                             controller=ctl if controller != "none" else None, estimator=estimator)
+                t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
+            sc = score_swd(t, hw[:len(t)], yaw_rate, ay)
             ok, failed = sc.passes(amp, a_deg)
             failed_all.update(failed)
             rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
@@ -161,5 +178,10 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
                          "pass": ok})
     verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
                "controller": controller if isinstance(controller, str) else type(controller).__name__,
-               "estimator": estimator, "vehicle": p.name}
+               "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}
+    if controller == "two-dof":
+        from controllers.two_dof import TwoDofDesign
+        d = design if design is not None else TwoDofDesign(p.as_nominal())
+        verdict["design"] = {k: getattr(d, k) for k in ("k_beta", "k_gamma", "yaw_priority", "reference_tau",
+                                                        "friction_margin", "disturbance_filter_tau")}
     return a_deg, rows, verdict

@@ -44,6 +44,7 @@ def test_control_fmvss126_quick(tmp_path):
     from studies import control_fmvss126
     rows = {r["controller"]: r for r in control_fmvss126.main(tmp_path, quick=True)}
     assert rows["none"]["pass"] is False  # the uncontrolled compact EV spins from 5 A
+    assert rows["two-dof (yaw first)"]["pass"] is True
     assert (tmp_path / "fmvss126_two-dof.csv").exists() and (tmp_path / "fmvss126_summary.md").exists()
 
 

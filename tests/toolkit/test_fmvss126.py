@@ -82,3 +82,20 @@ def test_amplitude_series():
     # A = 50 deg: 6.5 A = 325 deg > 270, capped at 300
     big = amplitudes(50.0)
     assert max(big) == 300.0 and big[0] == 75.0
+
+
+def test_uncontrolled_fails_and_limit_tuned_two_dof_passes_with_the_estimator():
+    # The configuration: compact-ev, mu = 1, 80 km/h, dakf in the loop. The paper's
+    # K_beta = K_gamma = 5 does not pass; the yaw-first design below does (full series).
+    from controllers.two_dof import TwoDofDesign
+    from plants import load_vehicle
+    from toolkit.fmvss126 import find_a, run_series
+    p = load_vehicle("compact-ev")
+    a = find_a(p)
+    assert a == pytest.approx(22.13, abs=0.01)  # regression line through 0.1-0.375 g, both directions
+    _, rows_none, v_none = run_series(p, "none", a_deg=a)
+    assert not v_none["pass"] and "yaw_ratio_1_0" in v_none["failed_criteria"]
+    d = TwoDofDesign(p.as_nominal(), k_beta=0.1, k_gamma=3.5, yaw_priority=1.5, reference_tau=0.12,
+                     friction_margin=0.7, disturbance_filter_tau=0.1)
+    _, rows, verdict = run_series(p, "two-dof", "dakf", design=d, a_deg=a)
+    assert verdict["pass"] and len(rows) == 44 and all(r["pass"] for r in rows)
