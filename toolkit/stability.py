@@ -60,10 +60,15 @@ def plant_ss(true_params: VehicleParams, speed: float) -> control.StateSpace:
                       states=["beta", "r"], name="P")
 
 
-def nominal_loop(design: TwoDofDesign, speed: float, true_params: VehicleParams | None = None):
-    """Interconnected loop (python-control) and its internal stability."""
+def nominal_loop(design: TwoDofDesign, speed: float, true_params: VehicleParams | None = None,
+                 controller_speed: float | None = None):
+    """Interconnected loop (python-control) and its internal stability.
+
+    ``true_params`` is the plant the controller meets (model error); ``controller_speed``
+    the speed the controller is scheduled at when it differs from the true ``speed``.
+    """
     P = plant_ss(true_params or design.params, speed)
-    C = controller_ss(design, speed)
+    C = controller_ss(design, speed if controller_speed is None else controller_speed)
     e_blk = control.ss([], [], [], np.hstack([np.eye(2), -np.eye(2)]), inputs=["r_beta", "r_r", "y_beta", "y_r"],
                        outputs=["e_beta", "e_r"], name="err")
     u_blk = control.ss([], [], [], np.hstack([np.eye(2), np.eye(2)]), inputs=["u_delta", "u_Nz", "du_delta", "du_Nz"],

@@ -56,6 +56,12 @@ def test_model_error_cases():
                                    cornering_stiffness_rear=f * p.cornering_stiffness_rear,
                                    mass=p.mass * 1.2)
         assert nominal_loop(d, 25.0, true)[1].stable
+    # speed off-nominal: the controller scheduled at a speed 20 % off the true one
+    for sched in (20.0, 30.0):
+        assert nominal_loop(d, 25.0, controller_speed=sched)[1].stable
+    # and the scheduling matters: the exact speed puts the poles back at -K
+    _, st = nominal_loop(d, 25.0, controller_speed=25.0)
+    assert np.min(np.abs(st.poles + 5.0)) < 1e-9
 
 
 def test_excessive_gain_is_unstable_in_the_sampled_loop():
