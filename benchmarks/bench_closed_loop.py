@@ -30,7 +30,7 @@ from plants.disturbances import Disturbances, default_wind, disturbance_profile
 from plants.maneuvers import step_steer
 from plants.sensors import SensorConfig, gps_fix_mask, readings
 from toolkit.closed_loop import NOISE, _noise_matrix, compiled_loop_run
-from toolkit.compiled import compiled_plant, rk4_substeps
+from toolkit.compiled import compiled_plant, rk4_numpy, rk4_substeps
 from toolkit.estimation import design_filter
 from toolkit.estimation import kalman
 
@@ -44,22 +44,11 @@ def python_control_loop(p, man, dist, sens, seconds, dt=1e-3):
     tmax = p.max_motor_torque or 1e9
     nx, nt = len(model.states), len(TRUTH)
 
-    def rk4(x, u, w):
-        h = dt / n_sub
-        f = lambda xx: model.f(xx, model.command_map(u, xx, p), w, p)  # noqa: E731
-        for _ in range(n_sub):
-            k1 = f(x)
-            k2 = f(x + h / 2 * k1)
-            k3 = f(x + h / 2 * k2)
-            k4 = f(x + h * k3)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return x
-
     def plant_upd(t, xs, u, params):
         x = xs[:nx]
         cmd, w = u[:4], u[4:]
         y = model.h(x, model.command_map(cmd, x, p), w, p)
-        return np.concatenate([rk4(x, cmd, w), y])
+        return np.concatenate([rk4_numpy(model, p, x, cmd, w, dt, n_sub), y])
 
     plant = control.nlsys(plant_upd, lambda t, xs, u, params: xs[nx:], dt=dt, name="plant",
                           inputs=["steer", "yaw_moment", "speed_ref", "drive_on"] + [f"w_{d}" for d in DISTURBANCES],

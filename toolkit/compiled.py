@@ -65,6 +65,22 @@ def rk4_substeps(model: PlantModel, p: VehicleParams, dt: float) -> int:
     return 1
 
 
+def rk4_numpy(model: PlantModel, p: VehicleParams, x, cmd, w, dt: float, n_sub: int):
+    """One sample of the same RK4 as :func:`build_step`, in numpy (for loops built outside casadi)."""
+    h = dt / n_sub
+
+    def rhs(xx):
+        return model.f(xx, model.command_map(cmd, xx, p), w, p)
+
+    for _ in range(n_sub):
+        k1 = rhs(x)
+        k2 = rhs(x + h / 2 * k1)
+        k3 = rhs(x + h / 2 * k2)
+        k4 = rhs(x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
 def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
     """casadi ``step(x, cmd, w, pvec) -> (x_next, y)``: RK4 over one sample, commands held.
 
