@@ -67,7 +67,8 @@ def cmd_simulate(args) -> int:
     mu = p.mu if args.mu is None else args.mu
     dist = Disturbances(wind=default_wind(p) if args.wind else None, friction=Friction(mu=mu))
     sensors = SensorConfig(gps_outages=tuple(args.gps_outage or ()))
-    res = simulate(p, args.plant, man, disturbances=dist, sensors=sensors, seed=args.seed, dt=args.dt)
+    res = simulate(p, args.plant, man, disturbances=dist, sensors=sensors, seed=args.seed, dt=args.dt,
+                   controller=args.controller, estimator=args.estimator)
     res.write_csv(args.out)
     if args.plot:
         plot_run(res, args.plot, man)
@@ -168,6 +169,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--wind", action="store_true", help="lateral wind gust 4-8 s (seed 003)")
     sp.add_argument("--gps-outage", type=_outage, action="append", metavar="START:END",
                     help="GPS outage window [s]; repeatable")
+    sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof", "two-dof-true"],
+                    help="close the stability loop (sensors -> estimator -> controller -> actuators); "
+                         "default: no loop, the driver alone")
+    sp.add_argument("--estimator", default="dakf", choices=["dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob"],
+                    help="estimation method in the loop (default dakf)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--dt", type=_positive, default=1e-3, help="time step [s]")
     sp.add_argument("--out", required=True, help="drive-log CSV to write")

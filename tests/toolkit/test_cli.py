@@ -103,3 +103,15 @@ def test_fmvss126_and_score_swd(tmp_path, capsys):
     capsys.readouterr()
     assert main(["score-swd", str(log), "--vehicle", "compact-ev", "--a-deg", "22.13"]) == 0
     assert "FAIL yaw_ratio_1_0" in capsys.readouterr().out
+
+
+def test_simulate_with_the_stability_loop(tmp_path):
+    out = tmp_path / "cl.csv"
+    assert main(["simulate", "--vehicle", "micro-ev", "--maneuver", "step-steer", "--speed", "25",
+                 "--controller", "two-dof", "--out", str(out)]) == 0
+    log = read_log_csv(out)
+    assert "steer_driver" in log and "yaw_moment_cmd" in log
+    assert np.abs(log["yaw_moment"]).max() > 0  # the motors act
+    with pytest.raises(SystemExit):
+        main(["simulate", "--vehicle", "micro-ev", "--maneuver", "step-steer", "--speed", "25",
+              "--controller", "magic", "--out", str(out)])
