@@ -164,3 +164,51 @@ def estimator_loop(design: TwoDofDesign, est: FilterDesign, speed: float, *, tru
         mats = [Phi]
     rho = float(np.max(np.abs(eig)))
     return mats, LoopStability(eig, bool(rho < 1.0), 1.0 - rho, kind)
+
+
+@dataclass(frozen=True)
+class ChannelMargins:
+    """Loop-at-a-time margins of one channel (the others closed)."""
+
+    channel: str
+    gm_db: float
+    """Gain margin [dB] (inf when the phase never crosses -180 deg)."""
+    pm_deg: float
+    """Phase margin [deg]."""
+    crossover_rad_s: float
+    """Gain crossover frequency [rad/s] (nan without a crossover)."""
+    disk_margin: float
+    """Balanced disk margin alpha (skew 0) [-]: simultaneous gain and phase variation tolerated."""
+    sensitivity_peak: float
+    """max |1 / (1 + L)| over frequency [-]."""
+
+
+def _return_ratio(T: control.StateSpace) -> control.StateSpace:
+    """``L = -T / (1 + T)`` from a channel's closed-loop map ``T``, where ``x = T d`` and ``x = -L (x + d)``."""
+    return control.feedback(-T, -1)
+
+
+def channel_margins(loop: control.InterconnectedSystem, omega: np.ndarray | None = None) -> list[ChannelMargins]:
+    """Loop-at-a-time margins at the plant inputs (``delta``, ``Nz``) and outputs (``beta``, ``r``).
+
+    Each channel of :func:`nominal_loop`'s loop is broken where its signal is
+    injected, the other channel staying closed. At an input, the controller output
+    answers an injection ``du`` with ``u = T du``, ``u = -L (u + du)``; at an output the
+    measured signal is ``y = S dy`` with ``S = 1 / (1 + L)``, i.e. ``T = S - 1`` in the
+    same form. Disk margins are python-control's balanced (skew 0) ones.
+    """
+    omega = np.logspace(-2, 3, 1500) if omega is None else omega
+    out = []
+    for name, inj, sig, at_output in (("delta", "du_delta", "u_delta", False), ("Nz", "du_Nz", "u_Nz", False),
+                                      ("beta", "dy_beta", "y_beta", True), ("r", "dy_r", "y_r", True)):
+        T = loop[sig, inj]
+        if at_output:
+            T = T - 1.0
+        L = _return_ratio(T)
+        gm, pm, _, _, wgc, _ = control.stability_margins(L)
+        S = 1.0 / (1.0 + np.squeeze(L(1j * omega)))
+        dm = float(np.min(np.asarray(control.disk_margins(L, omega, skew=0.0)[0]).ravel()))
+        gm_db = float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else float("inf")
+        out.append(ChannelMargins(name, gm_db, float(pm), float(wgc) if np.isfinite(wgc) else float("nan"),
+                                  dm, float(np.max(np.abs(S)))))
+    return out

@@ -177,3 +177,24 @@ def test_control_law_numpy_and_casadi_agree():
         # one expression evaluated two ways; yaw moments are ~1e4 N m, hence the absolute 1e-9
         np.testing.assert_allclose(np.array(zc).ravel(), zn, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(np.array(yc).ravel(), y, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("kb,kg", [(5.0, 5.0), (3.0, 8.0)])
+def test_output_channel_margins_closed_form(kb, kg):
+    # At the plant outputs the nominal return ratio is P C_fb = K (I - K)^-1 = diag(Kb, Kg) / s:
+    # phase margin 90 deg at crossover K_j, no gain margin limit, balanced disk margin
+    # 1 / max|S - 1/2| = 2 (|S - 1/2| = |s - K| / (2 |s + K|) = 1/2), |S| < 1 everywhere.
+    from toolkit.stability import channel_margins
+    p = load_vehicle("compact-ev")
+    loop, _ = nominal_loop(TwoDofDesign(p.as_nominal(), k_beta=kb, k_gamma=kg), 20.0)
+    m = {c.channel: c for c in channel_margins(loop)}
+    for ch, k in (("beta", kb), ("r", kg)):
+        assert m[ch].pm_deg == pytest.approx(90.0, abs=1e-6)
+        assert m[ch].crossover_rad_s == pytest.approx(k, rel=1e-6)
+        assert m[ch].gm_db == float("inf")
+        assert m[ch].disk_margin == pytest.approx(2.0, rel=1e-6)
+        assert m[ch].sensitivity_peak <= 1.0 + 1e-9
+    # with equal poles the input channels see the same K/s (the loop is K at both ends)
+    if kb == kg:
+        for ch in ("delta", "Nz"):
+            assert m[ch].pm_deg == pytest.approx(90.0, abs=1e-6)
