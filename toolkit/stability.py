@@ -188,6 +188,22 @@ def _return_ratio(T: control.StateSpace) -> control.StateSpace:
     return control.feedback(-T, -1)
 
 
+def _gain_margin_db(resp: np.ndarray) -> float:
+    """Gain margin [dB] from a frequency response: at each -180 deg phase crossing (where
+    ``Im L`` changes sign with ``Re L < 0``), ``-20 log10 |L|``; the smallest in magnitude.
+    Crossings where ``|L|`` is below 1e-6 or above 1e6 are round-off of a realisation
+    whose phase only grazes -180 deg, and are ignored; none left: inf."""
+    im = np.imag(resp)
+    k = np.nonzero((np.sign(im[:-1]) != np.sign(im[1:])) & (np.real(resp[:-1]) < 0))[0]
+    margins = []
+    for i in k:
+        f = im[i] / (im[i] - im[i + 1])
+        mag = abs(resp[i] + f * (resp[i + 1] - resp[i]))
+        if 1e-6 < mag < 1e6:
+            margins.append(-20.0 * np.log10(mag))
+    return float(min(margins, key=abs)) if margins else float("inf")
+
+
 def channel_margins(loop: control.InterconnectedSystem, omega: np.ndarray | None = None) -> list[ChannelMargins]:
     """Loop-at-a-time margins at the plant inputs (``delta``, ``Nz``) and outputs (``beta``, ``r``).
 
@@ -205,10 +221,11 @@ def channel_margins(loop: control.InterconnectedSystem, omega: np.ndarray | None
         if at_output:
             T = T - 1.0
         L = _return_ratio(T)
-        gm, pm, _, _, wgc, _ = control.stability_margins(L)
-        S = 1.0 / (1.0 + np.squeeze(L(1j * omega)))
+        _, pm, _, _, wgc, _ = control.stability_margins(L)
+        resp = np.squeeze(L(1j * omega))
+        S = 1.0 / (1.0 + resp)
         dm = float(np.min(np.asarray(control.disk_margins(L, omega, skew=0.0)[0]).ravel()))
-        gm_db = float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else float("inf")
+        gm_db = _gain_margin_db(resp)
         out.append(ChannelMargins(name, gm_db, float(pm), float(wgc) if np.isfinite(wgc) else float("nan"),
                                   dm, float(np.max(np.abs(S)))))
     return out
