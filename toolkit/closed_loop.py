@@ -5,7 +5,9 @@ steps in Python for an open-loop steer manoeuvre (same one-sample sensor delay,
 same noise draws, same component equations: each is written once for numpy and
 casadi), but as one casadi step function rolled out by ``mapaccum`` and compiled
 to C, so a 10 s run at 1 kHz costs milliseconds. Supported: the ``two-dof`` and
-``two-dof-true`` controllers, Kalman-filter estimators, zero GPS latency.
+``two-dof-true`` controllers, Kalman-filter estimators, GPS latencies of whole
+samples; the plant may differ from what controller and estimator believe
+(``nominal``), which is what model-error sweeps need.
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ class LoopSpec:
     sensors: SensorConfig
     mu: float
     design: TwoDofDesign | None = None
+    nominal: VehicleParams | None = None
+    """What the controller and estimator believe (default: ``params`` itself, as nominal)."""
 
 
 def _noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
@@ -64,19 +68,23 @@ def _build(spec: LoopSpec):
     p = spec.params
     n_sub = compiled_plant(model, p, spec.dt).n_sub
     plant_step, names = build_step(model, p, spec.dt, n_sub)
-    est = None if spec.controller == "two-dof-true" else design_filter(spec.estimator, p, dt=spec.dt)
-    ctl = spec.design if spec.design is not None else TwoDofDesign(p.as_nominal(), dt=spec.dt)
+    nom = spec.nominal if spec.nominal is not None else p
+    lat = spec.sensors.gps_latency
+    est = (None if spec.controller == "two-dof-true"
+           else design_filter(spec.estimator, nom, dt=spec.dt, latency=lat))
+    ctl = spec.design if spec.design is not None else TwoDofDesign(nom.as_nominal(), dt=spec.dt)
+    n_lag = int(round(lat / spec.dt))
     lim = ActuatorLimits()
     tmax = lim.torque_max if lim.torque_max is not None else (p.max_motor_torque or 1e9)
     nx, nt = len(model.states), len(TRUTH)
     ne = kal_mod.layout(est)["size"] if est is not None else 0
-    sizes = [nx, ne, len(ctl_mod.STATE), len(act_mod.STATE), nt, 2, 2]
+    sizes = [nx, ne, len(ctl_mod.STATE), len(act_mod.STATE), nt, 2, 2, 4 * n_lag]
     Z = ca.SX.sym("z", sum(sizes))
     parts, o = [], 0
     for s in sizes:
         parts.append(Z[o:o + s])
         o += s
-    x, z_est, z_ctl, z_act, y_prev, applied, flags = parts
+    x, z_est, z_ctl, z_act, y_prev, applied, flags, lag_buf = parts
     nin = 3 + len(DISTURBANCES) + len(NOISE) + 1
     U = ca.SX.sym("u", nin)
     steer_drv, speed_ref, drive_on = U[0], U[1], U[2]
@@ -91,7 +99,14 @@ def _build(spec: LoopSpec):
              "speed": nzd["speed"], "gps_e": nzd["gps_e"], "gps_n": nzd["gps_n"], "heading": nzd["heading"]}
     inp = {"steer": applied[0], "yaw_moment": applied[1], "bank": w[DISTURBANCES.index("bank")]}
     radius = p.wheel_radius if model.name == "two-track" or p.wheel_radius is not None else None
-    m = readings(tr, inp, noise, (tr["yaw"], tr["vx"], tr["vy"], tr["yaw_rate"]), fix, spec.sensors, radius, CASADI)
+    now = ca.vertcat(tr["yaw"], tr["vx"], tr["vy"], tr["yaw_rate"])
+    if n_lag > 0:  # the fix describes the truth n_lag samples ago (a shift register of it)
+        gps = tuple(lag_buf[4 * (n_lag - 1) + i] for i in range(4))
+        lag_next = ca.vertcat(now, lag_buf[:4 * (n_lag - 1)])
+    else:
+        gps = tuple(now[i] for i in range(4))
+        lag_next = lag_buf
+    m = readings(tr, inp, noise, gps, fix, spec.sensors, radius, CASADI)
     dt = spec.dt
     if est is not None:
         valid = m["gps_valid"]
@@ -110,7 +125,7 @@ def _build(spec: LoopSpec):
     z_act_n, a = actuator_law(p, lim, tmax, z_act, ca.vertcat(u[0], u[1], 0.0, dt), CASADI)
     cmd = ca.vertcat(a[0], a[1], speed_ref, drive_on)
     x_n, y_k = plant_step(x, cmd, w, pv)
-    Zn = ca.vertcat(x_n, z_est_n, z_ctl_n, z_act_n, y_k, a[0], a[1], a[2], a[3])
+    Zn = ca.vertcat(x_n, z_est_n, z_ctl_n, z_act_n, y_k, a[0], a[1], a[2], a[3], lag_next)
     extra = ca.vertcat(a[0], a[1], steer_drv, u[1], u[2], u[3], beta, r, a[3])
     step = ca.Function("loop_step", [Z, U, pv], [Zn, y_k, extra])
     acc = step.mapaccum("loop_acc", CHUNK)
@@ -137,16 +152,16 @@ def _compiled(spec: LoopSpec):
 def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str = "two-track",
                       controller: str = "two-dof", estimator: str = "dakf", sensors: SensorConfig | None = None,
                       disturbances: Disturbances | None = None, seed: int = 0, dt: float = 1e-3,
-                      design: TwoDofDesign | None = None) -> dict:
+                      design: TwoDofDesign | None = None, nominal: VehicleParams | None = None) -> dict:
     """Run the stability loop compiled; returns ``t``, ``truth`` and ``commands`` (as the simulator names them)."""
     if not maneuver.open_loop:
         raise ValueError("the compiled loop takes open-loop steer manoeuvres (no path driver)")
     sensors = sensors or SensorConfig()
-    if sensors.gps_latency != 0.0:
-        raise ValueError("the compiled loop supports zero GPS latency only")
+    if abs(sensors.gps_latency / dt - round(sensors.gps_latency / dt)) > 1e-9:
+        raise ValueError("the compiled loop needs a GPS latency that is a whole number of samples")
     disturbances = disturbances or Disturbances(friction=Friction(mu=params.mu))
     spec = LoopSpec(plant, params, float(dt), controller, None if controller == "two-dof-true" else estimator,
-                    sensors, disturbances.friction.mu, design)
+                    sensors, disturbances.friction.mu, design, nominal)
     step, chunk, names, sizes, est, nin, cf = _compiled(spec)
     model = get_plant(plant)
     n = int(round(maneuver.duration / dt))
@@ -168,6 +183,9 @@ def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str =
         z0[sizes[0]:sizes[0] + sizes[1]] = kal_mod.initial_state(est, 0.0, 0.0)
     off = sum(sizes[:4])
     z0[off:off + len(TRUTH)] = y0
+    if sizes[7]:
+        first = np.array([y0[TRUTH.index(k)] for k in ("yaw", "vx", "vy", "yaw_rate")])
+        z0[sum(sizes[:7]):] = np.tile(first, sizes[7] // 4)
     pv = param_vector(params, names)
     n_pad = -(-n // CHUNK) * CHUNK
     Up = np.empty((n_pad, nin))

@@ -98,7 +98,8 @@ class SimResult:
 def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver, *,
              disturbances: Disturbances | None = None, sensors: SensorConfig | None = None,
              seed: int = 0, dt: float = 1e-3, compile: bool = True, controller=None,
-             estimator: str | None = "dakf", mu_assumed: float | None = None) -> SimResult:
+             estimator: str | None = "dakf", mu_assumed: float | None = None,
+             nominal: VehicleParams | None = None) -> SimResult:
     """Run one manoeuvre on one plant and return the named signals.
 
     Parameters
@@ -123,6 +124,9 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         Estimation method in the loop (``dakf`` default); ignored by ``two-dof-true``.
     mu_assumed : float
         Friction the reference model assumes (default the run's friction).
+    nominal : VehicleParams
+        What the controller and the estimator believe (default ``params``, as nominal);
+        a different set is a model error.
     """
     model = get_plant(plant) if isinstance(plant, str) else plant
     model.check_params(params)
@@ -146,7 +150,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     if controller is not None:
         mu = disturbances.friction.mu if mu_assumed is None else mu_assumed
         X, Y, meas, extra = _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, controller,
-                                            estimator, mu)
+                                            estimator, mu, nominal or params)
     elif maneuver.open_loop:
         cmd[COMMANDS.index("steer")] = maneuver.steer(t)
         X, Y = cp.rollout(x0, cmd, W)
@@ -190,7 +194,7 @@ def make_controller(kind, params: VehicleParams, dt: float):
     raise SimulationError(f"unknown controller '{kind}'; known: none, yaw-pi, two-dof, two-dof-true")
 
 
-def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, controller, estimator, mu):
+def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, controller, estimator, mu, nominal):
     """Plant -> sensors -> estimator -> controller -> actuators -> plant, one sample at a time.
 
     Sensors read the truth of the previous sample (a one-sample sensor and
@@ -204,8 +208,9 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
 
     n, dt = len(t), cp.dt
     true_states = controller == "two-dof-true"
-    ctl = make_controller(controller, params, dt)
-    est = None if (true_states or estimator is None) else EstimatorComponent(design_filter(estimator, params, dt=dt))
+    ctl = make_controller(controller, nominal, dt)
+    est = None if (true_states or estimator is None) else EstimatorComponent(
+        design_filter(estimator, nominal, dt=dt, latency=sensors.gps_latency))
     act = Actuators(params)
     driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
     steer_drv = maneuver.steer(t) if maneuver.open_loop else np.zeros(n)

@@ -40,4 +40,18 @@ def test_compiled_loop_at_the_limit_matches_too():
 def test_compiled_loop_rejects_what_it_cannot_do():
     p = load_vehicle("micro-ev")
     with pytest.raises(ValueError, match="latency"):
-        compiled_loop_run(p, step_steer(7.0, 0.05), sensors=SensorConfig(gps_latency=0.1))
+        compiled_loop_run(p, step_steer(7.0, 0.05), sensors=SensorConfig(gps_latency=0.0105))
+
+
+def test_compiled_loop_with_model_error_and_latency_matches_python_loop():
+    import dataclasses
+    p = load_vehicle("compact-ev")
+    true = dataclasses.replace(p, cornering_stiffness_front=0.7 * p.cornering_stiffness_front,
+                               cornering_stiffness_rear=0.7 * p.cornering_stiffness_rear, mass=1.1 * p.mass)
+    man = step_steer(60 / 3.6, np.radians(2.0), start=1.0, duration=3.0)
+    sens = SensorConfig(gps_latency=0.05, gyro_bias=0.003, gyro_scale_error=0.01)
+    r = compiled_loop_run(true, man, sensors=sens, nominal=p, seed=2)
+    s = simulate(true, "two-track", man, controller="two-dof", sensors=sens, nominal=p, seed=2)
+    for k in ("beta", "yaw_rate"):
+        np.testing.assert_allclose(r["truth"][k], s.truth[k], rtol=0, atol=1e-9, err_msg=k)  # rounding only
+    np.testing.assert_allclose(r["commands"]["beta_est"], s.commands["beta_est"], rtol=0, atol=1e-9)
