@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from plants import G, VehicleParams
 from plants.bicycle import steady_state_gains

@@ -17,7 +17,7 @@ fix at all. The dual-antenna heading is yaw plus white noise at the same rate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -25,7 +25,7 @@ import controllers.two_dof as ctl_mod
 import plants.sensors as sens_mod
 from controllers.actuators import ActuatorLimits, actuator_law
 from controllers.two_dof import TwoDofDesign, control_law
-from plants import COMMANDS, DISTURBANCES, TRUTH, VehicleParams, get_plant
+from plants import DISTURBANCES, TRUTH, VehicleParams, get_plant
 from plants.backend import CASADI
 from plants.disturbances import Disturbances, Friction, disturbance_profile
 from plants.maneuvers import Maneuver

@@ -2,7 +2,6 @@
 
 import csv
 
-import pytest
 
 from studies import estimation_fig6, estimation_intersample, estimation_robustness
 

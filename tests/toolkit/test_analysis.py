@@ -7,7 +7,6 @@ from controllers.two_dof import TwoDofDesign
 from plants import load_vehicle
 from toolkit.analysis import estimator_periodic_poles, speed_grid
 from toolkit.estimation import design_filter
-from toolkit.estimation.analysis import periodic_gains
 
 
 def test_speed_grid_rows():
