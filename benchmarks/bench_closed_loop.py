@@ -30,7 +30,7 @@ from plants.disturbances import Disturbances, default_wind, disturbance_profile
 from plants.maneuvers import step_steer
 from plants.sensors import SensorConfig, gps_fix_mask, readings
 from toolkit.closed_loop import NOISE, _noise_matrix, compiled_loop_run
-from toolkit.compiled import compiled_plant, rk4_numpy, rk4_substeps
+from toolkit.compiled import compiled_plant, rk4_step, rk4_substeps
 from toolkit.estimation import design_filter
 from toolkit.estimation import kalman
 
@@ -48,7 +48,7 @@ def python_control_loop(p, man, dist, sens, seconds, dt=1e-3):
         x = xs[:nx]
         cmd, w = u[:4], u[4:]
         y = model.h(x, model.command_map(cmd, x, p), w, p)
-        return np.concatenate([rk4_numpy(model, p, x, cmd, w, dt, n_sub), y])
+        return np.concatenate([rk4_step(model, p, x, cmd, w, dt, n_sub), y])
 
     plant = control.nlsys(plant_upd, lambda t, xs, u, params: xs[nx:], dt=dt, name="plant",
                           inputs=["steer", "yaw_moment", "speed_ref", "drive_on"] + [f"w_{d}" for d in DISTURBANCES],

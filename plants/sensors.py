@@ -193,7 +193,9 @@ def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: i
     t_meas = t[idx] - cfg.gps_latency
     th = t[:last]
     gps = tuple(np.interp(t_meas, th, np.asarray(truth[k], float)[:last]) for k in ("yaw", "vx", "vy", "yaw_rate"))
-    fix = gps_fix_mask(t, cfg)[idx].astype(float)
+    # the fix mask at a sample needs only that sample and the one before it
+    lo = max(int(idx.min()) - 1, 0)
+    fix = gps_fix_mask(t[lo:last], cfg)[idx - lo].astype(float)
     out = readings(tr, inp, _noise_at(noise, idx), gps, fix, cfg, wheel_radius)
     valid, fixed = out.pop("gps_valid") > 0.5, out.pop("gps_fix") > 0.5
     nan = np.full(len(idx), np.nan)

@@ -65,8 +65,8 @@ def rk4_substeps(model: PlantModel, p: VehicleParams, dt: float) -> int:
     return 1
 
 
-def rk4_numpy(model: PlantModel, p: VehicleParams, x, cmd, w, dt: float, n_sub: int):
-    """One sample of the same RK4 as :func:`build_step`, in numpy (for loops built outside casadi)."""
+def rk4_step(model: PlantModel, p, x, cmd, w, dt: float, n_sub: int):
+    """One sample of classic RK4 (``n_sub`` sub-steps, commands held), numpy or casadi symbols."""
     h = dt / n_sub
 
     def rhs(xx):
@@ -92,18 +92,7 @@ def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
     x = ca.SX.sym("x", len(model.states))
     cmd = ca.SX.sym("cmd", len(COMMANDS))
     w = ca.SX.sym("w", len(DISTURBANCES))
-    h = dt / n_sub
-
-    def rhs(xx):
-        return model.f(xx, model.command_map(cmd, xx, sp), w, sp)
-
-    xk = x
-    for _ in range(n_sub):
-        k1 = rhs(xk)
-        k2 = rhs(xk + h / 2 * k1)
-        k3 = rhs(xk + h / 2 * k2)
-        k4 = rhs(xk + h * k3)
-        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    xk = rk4_step(model, sp, x, cmd, w, dt, n_sub)
     y = model.h(x, model.command_map(cmd, x, sp), w, sp)
     step = ca.Function("step", [x, cmd, w, pvec], [xk, y], ["x", "cmd", "w", "p"], ["x_next", "y"])
     return step, names
