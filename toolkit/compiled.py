@@ -48,12 +48,17 @@ def param_vector(p: VehicleParams, names: tuple[str, ...]) -> np.ndarray:
 def symbolic_params(p: VehicleParams, names: tuple[str, ...]):
     """A stand-in for ``p`` whose set fields are casadi symbols (unset ones stay None)."""
     vec = ca.SX.sym("p", len(names))
+    return symbolic_view(p, names, vec), vec
+
+
+def symbolic_view(p: VehicleParams, names: tuple[str, ...], vec):
+    """A stand-in for ``p`` whose set fields ``names`` are the entries of the casadi vector ``vec``."""
     ns = {f.name: None for f in fields(p)}
     ns.update({n: vec[i] for i, n in enumerate(names)})
     ns["name"], ns["source"] = p.name, p.source
     sp = SimpleNamespace(**ns)
     sp.wheelbase = sp.lf + sp.lr
-    return sp, vec
+    return sp
 
 
 # ------------------------------------------------------------------ functions

@@ -98,7 +98,7 @@ class SimResult:
 def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver, *,
              disturbances: Disturbances | None = None, sensors: SensorConfig | None = None,
              seed: int = 0, dt: float = 1e-3, compile: bool = True, controller=None,
-             estimator: str | None = "dakf", mu_assumed: float | None = None,
+             estimator="dakf", mu_assumed: float | None = None,
              nominal: VehicleParams | None = None) -> SimResult:
     """Run one manoeuvre on one plant and return the named signals.
 
@@ -120,8 +120,10 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         Closes the stability-control loop: plant -> sensors -> estimator ->
         controller -> actuators -> plant (see :func:`_stability_loop`). ``None``
         runs the driver alone (no sensors in the loop).
-    estimator : str
-        Estimation method in the loop (``dakf`` default); ignored by ``two-dof-true``.
+    estimator : str or FilterDesign
+        Estimation method in the loop (``dakf`` default; designed for ``nominal`` with the
+        sensors' true GPS latency), or a designed filter (its noise settings and assumed
+        latency as designed); ignored by ``two-dof-true``.
     mu_assumed : float
         Friction the reference model assumes (default the run's friction).
     nominal : VehicleParams
@@ -209,8 +211,13 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
     n, dt = len(t), cp.dt
     true_states = controller == "two-dof-true"
     ctl = make_controller(controller, nominal, dt)
-    est = None if (true_states or estimator is None) else EstimatorComponent(
-        design_filter(estimator, nominal, dt=dt, latency=sensors.gps_latency))
+    from .estimation.spec import FilterDesign
+    if true_states or estimator is None:
+        est = None
+    elif isinstance(estimator, FilterDesign):  # a designed filter (its own noise and assumed latency)
+        est = EstimatorComponent(estimator)
+    else:
+        est = EstimatorComponent(design_filter(estimator, nominal, dt=dt, latency=sensors.gps_latency))
     act = Actuators(params)
     driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
     steer_drv = maneuver.steer(t) if maneuver.open_loop else np.zeros(n)

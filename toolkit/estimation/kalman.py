@@ -68,8 +68,11 @@ def _dot(a, b, o):
 
 
 def _col(v, o):
-    import casadi as ca
-    return ca.DM(v) if o is CASADI else np.asarray(v, float)
+    """A column of numbers (or, for casadi, of numbers and symbols: tuned noise intensities)."""
+    if o is CASADI:
+        import casadi as ca
+        return ca.vertcat(*[ca.SX(e) if isinstance(e, ca.SX) else float(e) for e in v])
+    return np.asarray(v, float)
 
 
 def scalar_update(x, P, h, innov, r, o, n):
@@ -116,7 +119,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     F, Gam = discretize(A, dt, o, n)
     uin = o.stack([steer, nzm])
     x = F @ x + Gam @ (B @ uin)
-    q = _col(process_noise_diag(d), o)
+    q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
         mask = np.zeros(n)

@@ -182,10 +182,13 @@ def continuous_model(d: FilterDesign, v, ops, dynamic=True):
     return A, B
 
 
-def process_noise_diag(d: FilterDesign) -> np.ndarray:
+def process_noise_diag(d: FilterDesign, symbolic: bool = False):
+    """Process-noise intensities per state; with ``symbolic`` a list that may hold casadi symbols
+    (a design whose intensities are decision variables of the tuning)."""
     q = {"beta": d.noise.q_beta, "yaw_rate": d.noise.q_yaw_rate, "yaw": d.noise.q_yaw, "d1": d.noise.q_d1,
          "d2": d.noise.q_d2, "gyro_bias": d.noise.q_bias}
-    return np.array([q[s] for s in d.states])
+    vals = [q[s] for s in d.states]
+    return vals if symbolic else np.array(vals, float)
 
 
 def gyro_row(d: FilterDesign) -> np.ndarray:
