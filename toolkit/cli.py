@@ -202,12 +202,53 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--disturbance-filter", type=_nonneg, default=0.0, help="low-pass on the disturbance estimates [s]")
     sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")
     sp.set_defaults(func=cmd_fmvss126)
+    sp = sub.add_parser("design", help="design, analyse, sweep and tune the estimator and controller; write the report")
+    sp.add_argument("--vehicle", required=True, help="bundled name or TOML path")
+    sp.add_argument("--out", required=True, help="folder for design.json, sweep.csv, report.html, report.md")
+    sp.add_argument("--quick", action="store_true", help="fewer cases and tuning iterations (under a minute)")
+    sp.add_argument("--executor", choices=["local", "dask"], default="local",
+                    help="local process pool (default) or a Dask distributed cluster")
+    sp.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    sp.add_argument("--workers", type=int, help="worker processes (default: the CPU count)")
+    sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sp.set_defaults(func=cmd_design)
+    sp = sub.add_parser("report", help="redraw report.md and report.html from a design folder (no recomputing)")
+    sp.add_argument("dir", help="folder written by 'evstab design'")
+    sp.set_defaults(func=cmd_report)
     sp = sub.add_parser("score-swd", help="score a recorded or simulated sine-with-dwell log (FMVSS 126)")
     sp.add_argument("log")
     sp.add_argument("--vehicle", required=True, help="for the steering ratio")
     sp.add_argument("--a-deg", type=_positive, help="the vehicle's A [deg hand-wheel], to apply the criteria")
     sp.set_defaults(func=cmd_score_swd)
     return ap
+
+
+def cmd_design(args) -> int:
+    import shlex
+    from .design_job import run_design
+    if args.workers is not None and args.workers < 1:
+        raise EvstabError(f"--workers must be >= 1, got {args.workers}")
+    if args.scheduler and args.executor != "dask":
+        raise EvstabError("--scheduler needs --executor dask")
+    command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    doc = run_design(args.vehicle, args.out, quick=args.quick, executor=args.executor, scheduler=args.scheduler,
+                     workers=args.workers, command=command, progress=not args.no_progress)
+    s, d = doc["sweep"], doc["designs"]["tuned"]
+    print(f"{doc['vehicle']['name']}: tuned K_beta {d['k_beta']:.4g}, K_gamma {d['k_gamma']:.4g} rad/s; "
+          f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "
+          f"{s['tuned']['worst_cost']:.4g}; stable cases: paper {s['paper']['stable_cases']}, tuned "
+          f"{s['tuned']['stable_cases']} -> {args.out}/report.html")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .report import write_report
+    try:
+        md, html = write_report(args.dir)
+    except FileNotFoundError as exc:
+        raise EvstabError(str(exc)) from None
+    print(f"wrote {md} and {html}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

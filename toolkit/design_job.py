@@ -1,0 +1,354 @@
+"""``evstab design``: design, analyse, sweep, tune, report — the main job.
+
+Steps (each writes data; the report only draws what was written, so ``evstab
+report DIR`` can redraw it without recomputing):
+
+1. the paper design (seed 003: K_beta = K_gamma = 5 rad/s, the ``dakf`` filter with
+   its hand-tuned noise) on the vehicle's nominal parameters;
+2. the model-error sweep of the paper design (:mod:`toolkit.sweep`);
+3. the tuning (:mod:`toolkit.tuning`) on the paper design's worst cases plus the
+   nominal case; in the full run one cutting-plane round adds the tuned design's
+   worst case when it lies outside the tuning set and tunes again;
+4. the sweep of the tuned design; the comparison (worst case, stability);
+5. the speed-grid analysis of both designs (observability, estimator poles, loop
+   poles in s and z, margins) and the pole maps' data;
+6. time responses of the standard manoeuvres (no control, paper, tuned);
+7. the FMVSS 126 sine-with-dwell series for both designs;
+8. ``design.json`` (the tuned design, self-describing), ``sweep.csv`` and
+   ``sweep.parquet``, the tables, ``report.md`` and ``report.html``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from controllers.two_dof import TwoDofDesign
+from plants import VehicleParams, load_vehicle
+from plants.disturbances import Disturbances, Friction
+
+from . import sweep as sw
+from .analysis import SPEEDS_KMH, speed_grid
+from .estimation.spec import FilterDesign, NoiseSettings
+from .logio import atomic_write
+from .stability import estimator_loop, nominal_loop
+
+FORMAT = "evstab-design/1"
+
+
+def evstab_version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("evstab")
+    except Exception:  # running from a source tree that is not installed
+        return "unknown"
+
+
+def git_revision() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True,
+                             text=True, timeout=5)
+        rev = out.stdout.strip()
+        if out.returncode != 0 or not rev:
+            return "unknown"
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=5)
+        return rev + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+# ------------------------------------------------------------------ design.json
+def _controller_dict(d: TwoDofDesign) -> dict:
+    out = {f.name: getattr(d, f.name) for f in dataclasses.fields(d) if f.name != "params"}
+    out["yaw_moment_max"] = d.nz_max
+    return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in out.items()}
+
+
+def _estimator_dict(f: FilterDesign) -> dict:
+    return {"method": f.method, "states": list(f.states), "latency_s": f.latency, "antenna_x_m": f.antenna_x,
+            "dt_s": f.dt_nominal, "noise": {k.name: float(getattr(f.noise, k.name))
+                                             for k in dataclasses.fields(f.noise)}}
+
+
+def design_document(cfg: sw.SweepConfig, tuned: sw.DesignPoint, paper: sw.DesignPoint, summary: dict,
+                    tuning: dict, command: str) -> dict:
+    p = cfg.nominal
+    return {
+        "format": FORMAT,
+        "description": "evstab stability-control design: DAKF estimator (gyro 1 kHz + GPS course) and 2-DOF "
+                       "model-following controller (front steer + rear in-wheel-motor yaw moment).",
+        "units": "SI; angles in rad, rates in rad/s, yaw moment in N m; ISO 8855 signs (x forward, y left, z up)",
+        "vehicle": {"name": p.name, "params_digest": p.digest(), "nominal_params": p.as_nominal().to_dict()},
+        "plant_model": cfg.plant,
+        "control_period_s": cfg.dt,
+        "gps": {"rate_hz": cfg.sensors.gps_rate, "latency_s": cfg.sensors.gps_latency,
+                "hdop": cfg.sensors.gps_hdop, "satellites": cfg.sensors.gps_sats},
+        "estimator": _estimator_dict(cfg.filter_design(tuned)),
+        "controller": _controller_dict(tuned.controller(cfg.base_design())),
+        "designs": {d.name: {k: float(getattr(d, k)) for k in sw.DesignPoint.TUNED} for d in (paper, tuned)},
+        "tuning": tuning,
+        "sweep": summary,
+        "provenance": {"evstab_version": evstab_version(), "git_revision": git_revision(), "command": command,
+                       "created_unix": time.time(), "python": sys.version.split()[0]},
+    }
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadedDesign:
+    """A design read back from ``design.json``: ready-made filter and controller designs."""
+
+    document: dict
+    params: VehicleParams
+    filter: FilterDesign
+    controller: TwoDofDesign
+
+    @property
+    def point(self) -> sw.DesignPoint:
+        return sw.DesignPoint("tuned", **self.document["designs"]["tuned"])
+
+
+def load_design(path) -> LoadedDesign:
+    """Read ``DIR/design.json`` (or the file itself); errors name the file and the field."""
+    from .estimation import design_filter
+    from plants.params import VehicleParams as VP
+    path = Path(path)
+    f = path / "design.json" if path.is_dir() else path
+    try:
+        doc = json.loads(f.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ValueError(f"{f}: cannot read a design ({e})") from None
+    if doc.get("format") != FORMAT:
+        raise ValueError(f"{f}: field 'format' is {doc.get('format')!r}, expected {FORMAT!r}")
+    try:
+        params = VP(**doc["vehicle"]["nominal_params"])
+        est = doc["estimator"]
+        noise = NoiseSettings(**est["noise"])
+        fd = design_filter(est["method"], params, noise, latency=est["latency_s"], antenna_x=est["antenna_x_m"],
+                           dt=est["dt_s"])
+        c = dict(doc["controller"])
+        ctl = TwoDofDesign(params, **{k: v for k, v in c.items() if k != "yaw_moment_max"},
+                           yaw_moment_max=c["yaw_moment_max"])
+    except KeyError as e:
+        raise ValueError(f"{f}: missing field {e}") from None
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{f}: {e}") from None
+    return LoadedDesign(doc, params, fd, ctl)
+
+
+# ------------------------------------------------------------------ analysis data
+def analysis_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], speeds=SPEEDS_KMH) -> tuple[list, list]:
+    """Speed-grid table (one row per design and speed) and pole-map data (one row per pole)."""
+    rows, poles = [], []
+    p = cfg.nominal
+    for pt in points:
+        est, ctl = cfg.filter_design(pt), pt.controller(cfg.base_design())
+        for r in speed_grid(p, est, ctl, speeds_kmh=speeds, gps_rate=cfg.sensors.gps_rate, dt=cfg.dt):
+            rows.append({"design": pt.name, **r})
+        for kmh in speeds:
+            v = kmh / 3.6
+            _, st = nominal_loop(ctl, v, p)
+            for z in st.poles:
+                poles.append({"design": pt.name, "speed_kmh": kmh, "plane": "s", "what": "loop (controller + plant)",
+                              "re": float(z.real), "im": float(z.imag)})
+            try:
+                _, mr = estimator_loop(ctl, est, v, true_params=p, gps_rate=cfg.sensors.gps_rate, dt=cfg.dt)
+                for z in mr.poles:
+                    poles.append({"design": pt.name, "speed_kmh": kmh, "plane": "z",
+                                  "what": "multi-rate loop with estimator (per GPS period)",
+                                  "re": float(z.real), "im": float(z.imag)})
+            except np.linalg.LinAlgError:
+                pass
+    return rows, poles
+
+
+def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: int = 10) -> list[dict]:
+    """Time responses of the standard manoeuvres at 80 km/h on mu 1 and mu 0.45: no control and each design."""
+    from .closed_loop import program
+    from .simulator import simulate
+    rows = []
+    prog = program(cfg.spec())
+    for mu in (1.0, 0.45):
+        case = sw.Case(-1, mu=mu, group="response")
+        true = case.plant_params(cfg.nominal)
+        sens = case.sensors(cfg.sensors)
+        for man in sw.standard_maneuvers(cfg, case.speed_kmh / 3.6):
+            r = simulate(true, cfg.plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=case.seed)
+            runs = {"no control": (r.t, r.truth["yaw_rate"], r.truth["beta"], np.full(len(r.t), np.nan),
+                                   r.commands["steer"], np.zeros(len(r.t)))}
+            U, z0, pv = prog.inputs(true, man, Disturbances(friction=Friction(mu=mu)), sens, case.seed)
+            for pt in points:
+                th = prog.theta(k_beta=pt.k_beta, k_gamma=pt.k_gamma, noise=pt.noise(), mu_assumed=mu)
+                Y, E = prog.run(U, z0, pv, th)
+                from plants import TRUTH
+                from .closed_loop import EXTRA
+                t = np.arange(len(U)) * cfg.dt
+                runs[pt.name] = (t, Y[:, TRUTH.index("yaw_rate")], Y[:, TRUTH.index("beta")],
+                                 E[:, EXTRA.index("yaw_rate_ref")], E[:, EXTRA.index("steer")],
+                                 E[:, EXTRA.index("yaw_moment")])
+            for label, (t, yr, b, ref, st, nz) in runs.items():
+                for k in range(0, len(t), decimate):
+                    rows.append({"mu": mu, "maneuver": man.name, "controller": label, "t": float(t[k]),
+                                 "yaw_rate": float(yr[k]), "beta": float(b[k]), "yaw_rate_ref": float(ref[k]),
+                                 "steer": float(st[k]), "yaw_moment": float(nz[k])})
+    return rows
+
+
+def fmvss_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], quick: bool) -> list[dict]:
+    from .fmvss126 import find_a, run_series
+    p = cfg.nominal
+    a_deg = find_a(p, cfg.plant, p.mu)
+    out = []
+    _, rows, verdict = run_series(p, "none", a_deg=a_deg, quick=quick)
+    out.append({"controller": "no control", "A_deg": a_deg, "runs": len(rows),
+                "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
+                "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
+    for pt in points:
+        _, rows, verdict = run_series(p, "two-dof", cfg.filter_design(pt), a_deg=a_deg, quick=quick,
+                                      design=pt.controller(cfg.base_design()))
+        out.append({"controller": f"2-DOF {pt.name}", "A_deg": a_deg, "runs": len(rows),
+                    "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
+                    "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
+    return out
+
+
+# ------------------------------------------------------------------ comparison
+def compare(rows: list[dict]) -> dict:
+    """Worst case and stability of each design over the sweep, and the case-by-case relation."""
+    by = {}
+    for r in rows:
+        by.setdefault(r["design"], {})[r["case_id"]] = r
+    out = {"cases": len(next(iter(by.values())))}
+    for name, rs in by.items():
+        worst = max(rs.values(), key=lambda r: r["cost"])
+        out[name] = {"worst_cost": worst["cost"], "worst_case_id": worst["case_id"],
+                     "stable_cases": sum(r["stable"] for r in rs.values()),
+                     "median_cost": float(np.median([r["cost"] for r in rs.values()]))}
+    if "paper" in by and "tuned" in by:
+        ids = sorted(by["paper"])
+        out["tuned_stable_where_paper_stable"] = all(by["tuned"][i]["stable"] for i in ids if by["paper"][i]["stable"])
+        out["paper_stable_tuned_unstable"] = [i for i in ids if by["paper"][i]["stable"] and not by["tuned"][i]["stable"]]
+        out["tuned_better_cases"] = sum(by["tuned"][i]["cost"] < by["paper"][i]["cost"] for i in ids)
+        out["tuned_strictly_better_worst_case"] = out["tuned"]["worst_cost"] < out["paper"]["worst_cost"]
+    return out
+
+
+# ------------------------------------------------------------------ the job
+def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
+               workers: int | None = None, command: str | None = None, progress: bool = True, log=print) -> dict:
+    from .report import write_report
+    from .tuning import SIGMA_MIN, BOUNDS, tune
+    t_start = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    params = load_vehicle(vehicle)
+    cfg = sw.SweepConfig(params)
+    cases = sw.sweep_cases(quick=quick)
+    paper = sw.PAPER
+    log(f"evstab design: {params.name}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")
+    rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
+                              progress=progress)
+    log(f"  sweep of the paper design: {time.perf_counter() - t_start:.1f} s")
+    n_tune = 3 if quick else 6
+    ranked = sorted(rows_paper, key=lambda r: -r["cost"])
+    nominal_id = next(c.case_id for c in cases if c.cf_scale == 1.0 and c.cr_scale == 1.0 and c.group == "stiffness")
+    ids = [r["case_id"] for r in ranked[:n_tune]]
+    if nominal_id not in ids:
+        ids.append(nominal_id)
+    max_iter = 6 if quick else 25
+    res = tune(cfg, [cases[i] for i in ids], paper, max_iter=max_iter)
+    rounds = [dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
+                   worst_start=res.worst_start, worst_tuned=res.worst_tuned)]
+    tuned = dataclasses.replace(res.point, name="tuned")
+    rows_tuned = sw.run_sweep(cfg, cases, [tuned], executor=executor, scheduler=scheduler, workers=workers,
+                              progress=progress)
+    if not quick:  # one cutting-plane round: the tuned design's worst case joins the tuning set
+        worst_id = max(rows_tuned, key=lambda r: r["cost"])["case_id"]
+        if worst_id not in ids:
+            ids.append(worst_id)
+            res = tune(cfg, [cases[i] for i in ids], tuned, max_iter=max_iter)
+            rounds.append(dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
+                               worst_start=res.worst_start, worst_tuned=res.worst_tuned))
+            cand = dataclasses.replace(res.point, name="tuned")
+            rows_cand = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
+                                     progress=progress)
+            if max(r["cost"] for r in rows_cand) < max(r["cost"] for r in rows_tuned):
+                tuned, rows_tuned = cand, rows_cand
+    log(f"  tuning and sweep of the tuned design: {time.perf_counter() - t_start:.1f} s")
+    rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
+    summary = compare(rows)
+    points = [paper, tuned]
+    grid, poles = analysis_rows(cfg, points)
+    responses = response_rows(cfg, points)
+    fmvss = fmvss_rows(cfg, points, quick)
+    log(f"  analysis, responses, FMVSS 126: {time.perf_counter() - t_start:.1f} s")
+    tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
+                        "AD through compiled rollouts of the loop; stability constraint: decay rate of the "
+                        "multi-rate loop with the estimator >= sigma_min on every tuning case",
+              "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
+              "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds,
+              "cost": "mean over the standard manoeuvres of ms(r - r_ref)/(1 deg/s)^2 + ms(beta - beta_ref)/"
+                      "(0.5 deg)^2 + ms(beta_hat - beta)/(0.5 deg)^2 + 0.1 ms(N_z)/N_z,max^2"}
+    cmd = command or "evstab design --vehicle " + shlex.quote(vehicle) + (" --quick" if quick else "")
+    doc = design_document(cfg, tuned, paper, summary, tuning, cmd)
+    _write_json(out / "design.json", doc)
+    _write_csv(out / "sweep.csv", rows)
+    _write_parquet(out / "sweep.parquet", rows)
+    _write_csv(out / "analysis.csv", grid)
+    _write_csv(out / "poles.csv", poles)
+    _write_csv(out / "responses.csv", responses)
+    _write_csv(out / "fmvss126.csv", fmvss)
+    write_report(out)
+    log(f"  report: {time.perf_counter() - t_start:.1f} s")
+    return doc
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    atomic_write(path, lambda fh: fh.write(json.dumps(doc, indent=2, sort_keys=False, allow_nan=True) + "\n"))
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    import csv
+    keys = list(rows[0]) if rows else []
+
+    def w(fh):
+        wr = csv.DictWriter(fh, fieldnames=keys, lineterminator="\n")
+        wr.writeheader()
+        for r in rows:
+            wr.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+
+    atomic_write(path, w)
+
+
+def _write_parquet(path: Path, rows: list[dict]) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    table = pa.Table.from_pylist(rows)
+    atomic_write(path, lambda fh: pq.write_table(table, fh), mode="wb")
+
+
+def read_csv(path: Path) -> list[dict]:
+    """Rows of a CSV the job wrote, numbers and booleans parsed back."""
+    import csv
+
+    def conv(v: str):
+        if v in ("True", "False"):
+            return v == "True"
+        try:
+            return int(v)
+        except ValueError:
+            pass
+        try:
+            return float(v)
+        except ValueError:
+            return v
+
+    with open(path, newline="") as fh:
+        return [{k: conv(v) for k, v in r.items()} for r in csv.DictReader(fh)]

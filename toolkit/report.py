@@ -1,0 +1,288 @@
+"""The design report, drawn only from what ``evstab design`` wrote (``evstab report DIR`` redraws it).
+
+Inputs in ``DIR``: ``design.json``, ``sweep.csv``, ``analysis.csv``, ``poles.csv``,
+``responses.csv``, ``fmvss126.csv``. Outputs: ``report.md`` with PNGs under
+``figures/`` and ``report.html`` with the same content and the figures embedded
+(self-contained). Both are rendered from one list of blocks, so they cannot
+disagree; every number is formatted by :func:`fmt`.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .logio import atomic_write
+
+NEEDED = ("design.json", "sweep.csv", "analysis.csv", "poles.csv", "responses.csv", "fmvss126.csv")
+
+
+def fmt(v) -> str:
+    """Numbers as the report prints them (6 significant digits), booleans as yes/no."""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        if not np.isfinite(v):
+            return str(v)
+        return f"{v:.6g}"
+    return str(v)
+
+
+class Doc:
+    def __init__(self):
+        self.blocks: list[tuple] = []
+
+    def h(self, level: int, text: str):
+        self.blocks.append(("h", level, text))
+
+    def p(self, text: str):
+        self.blocks.append(("p", text))
+
+    def table(self, rows: list[dict], cols: list[str] | None = None, headers: list[str] | None = None):
+        if not rows:
+            self.p("(no rows)")
+            return
+        cols = cols or list(rows[0])
+        self.blocks.append(("table", headers or cols, [[fmt(r.get(c, "")) for c in cols] for r in rows]))
+
+    def figure(self, name: str, fig, caption: str):
+        import matplotlib.pyplot as plt
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+        plt.close(fig)
+        self.blocks.append(("fig", name, buf.getvalue(), caption))
+
+    def markdown(self) -> str:
+        out = []
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append("#" * b[1] + " " + b[2] + "\n")
+            elif b[0] == "p":
+                out.append(b[1] + "\n")
+            elif b[0] == "table":
+                hdr, rows = b[1], b[2]
+                out.append("| " + " | ".join(hdr) + " |\n|" + "---|" * len(hdr))
+                out.extend("| " + " | ".join(c.replace("|", "/") for c in r) + " |" for r in rows)
+                out.append("")
+            else:
+                out.append(f"![{b[3]}](figures/{b[1]}.png)\n\n*{b[3]}*\n")
+        return "\n".join(out) + "\n"
+
+    def html(self, title: str) -> str:
+        out = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>",
+               "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+               "table{border-collapse:collapse;margin:1em 0;font-size:0.85em}td,th{border:1px solid #bbb;"
+               "padding:2px 6px;text-align:right}th{background:#eee}img{max-width:100%}"
+               "figcaption{font-style:italic;color:#555}</style></head><body>"]
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append(f"<h{b[1]}>{html.escape(b[2])}</h{b[1]}>")
+            elif b[0] == "p":
+                out.append(f"<p>{html.escape(b[1])}</p>")
+            elif b[0] == "table":
+                out.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in b[1]) + "</tr>")
+                out.extend("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in b[2])
+                out.append("</table>")
+            else:
+                data = base64.b64encode(b[2]).decode()
+                out.append(f"<figure><img alt=\"{html.escape(b[3])}\" src=\"data:image/png;base64,{data}\">"
+                           f"<figcaption>{html.escape(b[3])}</figcaption></figure>")
+        out.append("</body></html>")
+        return "\n".join(out)
+
+
+def load_outputs(d: Path) -> dict:
+    from .design_job import read_csv
+    missing = [n for n in NEEDED if not (d / n).is_file()]
+    if missing:
+        raise FileNotFoundError(f"{d}: not a design directory, missing {', '.join(missing)} "
+                                f"(run 'evstab design --out {d}' first)")
+    return {"design": json.loads((d / "design.json").read_text()), "sweep": read_csv(d / "sweep.csv"),
+            "analysis": read_csv(d / "analysis.csv"), "poles": read_csv(d / "poles.csv"),
+            "responses": read_csv(d / "responses.csv"), "fmvss": read_csv(d / "fmvss126.csv")}
+
+
+def build(data: dict) -> Doc:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    doc, sweep = data["design"], data["sweep"]
+    s = doc["sweep"]
+    designs = list(doc["designs"])
+    veh = doc["vehicle"]
+    D = Doc()
+    D.h(1, f"evstab design report: {veh['name']}")
+    D.p(f"Command: {doc['provenance']['command']}")
+
+    D.h(2, "Result")
+    D.p(f"Worst case over the {fmt(s['cases'])} model-error cases of the sweep: paper design cost "
+        f"{fmt(s['paper']['worst_cost'])} (case {fmt(s['paper']['worst_case_id'])}), tuned design cost "
+        f"{fmt(s['tuned']['worst_cost'])} (case {fmt(s['tuned']['worst_case_id'])}); tuned strictly better on the "
+        f"worst case: {fmt(s['tuned_strictly_better_worst_case'])}.")
+    D.p(f"Stable cases (multi-rate linear loop with the estimator stable and every rollout bounded): paper "
+        f"{fmt(s['paper']['stable_cases'])} of {fmt(s['cases'])}, tuned {fmt(s['tuned']['stable_cases'])} of "
+        f"{fmt(s['cases'])}; tuned stable in every case the paper design is stable: "
+        f"{fmt(s['tuned_stable_where_paper_stable'])}; tuned cheaper in {fmt(s['tuned_better_cases'])} cases.")
+
+    D.h(2, "Vehicle and design")
+    p = veh["nominal_params"]
+    keys = ["mass", "yaw_inertia", "lf", "lr", "cornering_stiffness_front", "cornering_stiffness_rear", "mu",
+            "max_motor_torque", "track_rear", "wheel_radius", "steering_ratio"]
+    D.table([{"parameter": k, "nominal value": p.get(k)} for k in keys if p.get(k) is not None])
+    D.p(f"Parameter-set hash {veh['params_digest']}; plant model {doc['plant_model']}; control period "
+        f"{fmt(doc['control_period_s'])} s; GPS {fmt(doc['gps']['rate_hz'])} Hz, latency "
+        f"{fmt(doc['gps']['latency_s'])} s (designed).")
+    D.table([{"quantity": k, **{n: doc["designs"][n][k] for n in designs}} for k in doc["designs"]["paper"]])
+    D.p("K_beta, K_gamma: model-following poles [rad/s]; q_*: process-noise intensities of the DAKF. "
+        "The paper design is seed 003's K_beta = K_gamma = 5 rad/s with evstab's hand-tuned dakf noise.")
+    t = doc["tuning"]
+    D.p(f"Tuning: {t['method']}. Decision variables: {t['decision_variables']}, each within a factor "
+        f"{fmt(t['bounds_factor'])} of the paper design; sigma_min {fmt(t['sigma_min_1_s'])} 1/s. Cost: {t['cost']}.")
+    D.table([{"round": i + 1, "tuning cases": " ".join(str(c) for c in r["cases"]), "IPOPT iterations":
+              r["iterations"], "status": r["status"], "worst start": r["worst_start"], "worst tuned": r["worst_tuned"]}
+             for i, r in enumerate(t["rounds"])])
+
+    D.h(2, "Analysis across speed")
+    an = data["analysis"]
+    D.h(3, "Observability of the estimator")
+    D.table([r for r in an if r["design"] == designs[-1]],
+            ["speed_kmh", "observable", "observability_rank", "observability_sv_ratio", "unobservable", "riccati",
+             "estimator_slowest_rate_1_s"])
+    D.h(3, "Internal stability and margins")
+    D.table(an, ["design", "speed_kmh", "internally_stable", "loop_margin_1_s", "gm_delta_db", "pm_delta_deg",
+                 "gm_nz_db", "pm_nz_deg", "disk_margin_min", "sensitivity_peak_max", "multirate_stable",
+                 "multirate_spectral_radius"])
+    D.p("Margins are loop-at-a-time at the plant inputs (steer delta, yaw moment Nz), other channel closed; disk "
+        "margin and sensitivity peak are the smallest / largest over the four loop-breaking points.")
+    poles = data["poles"]
+    for plane, title in (("s", "Loop poles in the s-plane (controller + nominal bicycle plant)"),
+                         ("z", "Multi-rate loop with the estimator: monodromy eigenvalues over one GPS period")):
+        fig, axes = plt.subplots(1, len(designs), figsize=(11, 4.2), squeeze=False)
+        for ax, dn in zip(axes[0], designs):
+            pr = [r for r in poles if r["design"] == dn and r["plane"] == plane]
+            sc = ax.scatter([r["re"] for r in pr], [r["im"] for r in pr], c=[r["speed_kmh"] for r in pr], s=18,
+                            cmap="viridis", marker="x")
+            if plane == "z":
+                th = np.linspace(0, 2 * np.pi, 400)
+                ax.plot(np.cos(th), np.sin(th), "k-", lw=0.6)
+                ax.set_aspect("equal")
+            else:
+                ax.axvline(0, color="k", lw=0.6)
+            ax.set_title(f"{dn}")
+            ax.set_xlabel("Re")
+            ax.set_ylabel("Im")
+            ax.grid(alpha=0.3)
+        fig.colorbar(sc, ax=axes[0].tolist(), label="speed [km/h]")
+        D.figure(f"poles_{plane}", fig, title)
+
+    D.h(2, "Model-error sweep")
+    by = {}
+    for r in sweep:
+        by.setdefault(r["design"], {})[r["case_id"]] = r
+    grid = [r for r in sweep if r["group"] in ("stiffness",)]
+    cfs = sorted({r["cf_scale"] for r in grid})
+    crs = sorted({r["cr_scale"] for r in grid})
+    if cfs and crs:
+        fig, axes = plt.subplots(2, len(designs), figsize=(10, 8), squeeze=False)
+        for j, dn in enumerate(designs):
+            for i, (key, label, cmap) in enumerate((("stable", "stable (1) / not (0)", "RdYlGn"),
+                                                    ("beta_rms_deg", "sideslip estimation RMS [deg]", "magma_r"))):
+                M = np.full((len(crs), len(cfs)), np.nan)
+                for r in grid:
+                    if r["design"] == dn:
+                        M[crs.index(r["cr_scale"]), cfs.index(r["cf_scale"])] = float(r[key])
+                ax = axes[i, j]
+                im = ax.imshow(M, origin="lower", cmap=cmap, aspect="auto",
+                               norm=None if key == "stable" else matplotlib.colors.LogNorm(),
+                               vmin=0 if key == "stable" else None, vmax=1 if key == "stable" else None)
+                ax.set_xticks(range(len(cfs)), [f"{(c - 1) * 100:+.0f}%" for c in cfs])
+                ax.set_yticks(range(len(crs)), [f"{(c - 1) * 100:+.0f}%" for c in crs])
+                ax.set_xlabel("front cornering stiffness error")
+                ax.set_ylabel("rear cornering stiffness error")
+                ax.set_title(f"{dn}: {label}")
+                for (yy, xx), v in np.ndenumerate(M):
+                    ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7)
+                fig.colorbar(im, ax=ax)
+        fig.tight_layout()
+        D.figure("sweep_heatmaps", fig, "Stiffness grid at 80 km/h, mu 1: stability verdict and sideslip "
+                                        "estimation RMS")
+    groups = sorted({r["group"] for r in sweep})
+    D.table([{"group": g, **{f"{dn} worst cost": max(r["cost"] for r in sweep if r["group"] == g and
+                                                     r["design"] == dn) for dn in designs},
+              **{f"{dn} stable": sum(r["stable"] for r in sweep if r["group"] == g and r["design"] == dn)
+                 for dn in designs},
+              "cases": sum(1 for r in sweep if r["group"] == g and r["design"] == designs[0])} for g in groups])
+    if "paper" in by and "tuned" in by:
+        ids = sorted(by["paper"])
+        fig, ax = plt.subplots(figsize=(6, 5.5))
+        xs = np.array([by["paper"][i]["cost"] for i in ids])
+        ys = np.array([by["tuned"][i]["cost"] for i in ids])
+        ax.loglog(xs, ys, "o", ms=4, alpha=0.7)
+        lo, hi = min(xs.min(), ys.min()), max(xs.max(), ys.max())
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
+        ax.set_xlabel("paper design cost")
+        ax.set_ylabel("tuned design cost")
+        ax.grid(alpha=0.3, which="both")
+        D.figure("cost_paper_vs_tuned", fig, "Case by case: below the diagonal the tuned design is better")
+        D.h(3, "Tuned vs paper, case by case (the 20 worst cases of the paper design)")
+        worst = sorted(ids, key=lambda i: -by["paper"][i]["cost"])[:20]
+        cols = ["cf_scale", "cr_scale", "mu", "mass_scale", "inertia_scale", "speed_kmh", "gps_rate", "gps_latency"]
+        D.table([{"case": i, **{c: by["paper"][i][c] for c in cols},
+                  "paper cost": by["paper"][i]["cost"], "tuned cost": by["tuned"][i]["cost"],
+                  "paper stable": by["paper"][i]["stable"], "tuned stable": by["tuned"][i]["stable"],
+                  "paper beta RMS deg": by["paper"][i]["beta_rms_deg"],
+                  "tuned beta RMS deg": by["tuned"][i]["beta_rms_deg"]} for i in worst])
+    D.p("The whole table (one row per case and design) is sweep.csv / sweep.parquet.")
+
+    D.h(2, "Time responses of the standard manoeuvres (80 km/h)")
+    resp = data["responses"]
+    combos = sorted({(r["mu"], r["maneuver"]) for r in resp}, key=lambda c: (-c[0], c[1]))
+    fig, axes = plt.subplots(len(combos), 2, figsize=(11, 2.6 * len(combos)), squeeze=False)
+    for i, (mu, man) in enumerate(combos):
+        for label in sorted({r["controller"] for r in resp}):
+            rr = [r for r in resp if r["mu"] == mu and r["maneuver"] == man and r["controller"] == label]
+            tt = [r["t"] for r in rr]
+            axes[i, 0].plot(tt, np.degrees([r["yaw_rate"] for r in rr]), label=label)
+            axes[i, 1].plot(tt, np.degrees([r["beta"] for r in rr]), label=label)
+        axes[i, 0].set_ylabel(f"mu {mu:g} {man}\nyaw rate [deg/s]", fontsize=8)
+        axes[i, 1].set_ylabel("sideslip [deg]")
+        for ax in axes[i]:
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    fig.tight_layout()
+    D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design")
+
+    D.h(2, "FMVSS 126 sine with dwell")
+    D.table(data["fmvss"])
+
+    D.h(2, "Provenance")
+    pv = doc["provenance"]
+    D.table([{"item": k, "value": v} for k, v in (("evstab version", pv["evstab_version"]),
+                                                   ("git revision", pv["git_revision"]),
+                                                   ("parameter-set hash", veh["params_digest"]),
+                                                   ("command", pv["command"]), ("python", pv["python"]))])
+    return D
+
+
+def write_report(d) -> tuple[Path, Path]:
+    """Draw ``report.md`` (+ ``figures/``) and ``report.html`` from the data in ``d``."""
+    d = Path(d)
+    data = load_outputs(d)
+    D = build(data)
+    for b in D.blocks:
+        if b[0] == "fig":
+            atomic_write(d / "figures" / f"{b[1]}.png", lambda fh, b=b: fh.write(b[2]), mode="wb")
+    title = f"evstab design report: {data['design']['vehicle']['name']}"
+    atomic_write(d / "report.md", lambda fh: fh.write(D.markdown()))
+    atomic_write(d / "report.html", lambda fh: fh.write(D.html(title)))
+    return d / "report.md", d / "report.html"

@@ -1,0 +1,346 @@
+"""Model-error sweeps of the closed loop with the estimator in it.
+
+A :class:`Case` is one model error: the plant's cornering stiffnesses, mass and yaw
+inertia scaled against what the designer believes, the road friction, the speed,
+the GPS rate and latency, the gyro's bias and scale error. For each case and each
+design (:class:`DesignPoint`: gains and noise intensities) the sweep gives
+
+* a stability verdict: the sampled multi-rate loop with the estimator in it
+  (:func:`toolkit.stability.estimator_loop`, linear bicycle with the case's mass,
+  inertia and stiffness at the case's speed and GPS rate; spectral radius of the
+  monodromy) **and** boundedness of the nonlinear rollouts (finite, |beta| below
+  ``SPIN_BETA``); latency, friction and gyro errors act through the rollouts;
+* estimation and tracking errors and actuator usage on the standard manoeuvre set
+  (:func:`standard_maneuvers`), run as compiled loops on the two-track plant;
+* a cost (:func:`cost_terms`), the quantity the tuning minimises in the worst case.
+
+All of it is data: one row per case and design (:func:`evaluate_cases`). The
+local executor is a process pool; :func:`run_sweep` with ``executor="dask"`` sends
+the same batches to a Dask cluster. Cases carry their own seed, so results do not
+depend on the executor or the batching.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers.two_dof import TwoDofDesign
+from plants import TRUTH, VehicleParams
+from plants.disturbances import Disturbances, Friction
+from plants.maneuvers import Maneuver, sine_lane_change, step_steer, steer_for_lateral_acceleration
+from plants.sensors import SensorConfig
+
+from .closed_loop import EXTRA, loop_spec, program
+from .estimation import design_filter
+from .estimation.spec import FilterDesign, NoiseSettings
+from .stability import estimator_loop
+
+SPIN_BETA = np.deg2rad(20.0)
+"""A rollout whose true sideslip exceeds this [rad] has lost the car (not bounded)."""
+R_SCALE = np.deg2rad(1.0)
+"""Yaw-rate tracking error that costs 1 [rad/s]."""
+B_SCALE = np.deg2rad(0.5)
+"""Sideslip tracking error that costs 1 [rad]."""
+E_SCALE = np.deg2rad(0.5)
+"""Sideslip estimation error that costs 1 [rad]."""
+U_WEIGHT = 0.1
+"""Weight of the mean-square yaw moment, relative to the largest the motors make."""
+MANEUVER_DURATION = 5.0
+"""Every standard manoeuvre lasts this long [s] (the tuning's rollouts have one length)."""
+
+
+@dataclass(frozen=True)
+class Case:
+    """One model-error case (scales are plant / nominal)."""
+
+    case_id: int
+    cf_scale: float = 1.0
+    cr_scale: float = 1.0
+    mu: float = 1.0
+    mass_scale: float = 1.0
+    inertia_scale: float = 1.0
+    speed_kmh: float = 80.0
+    gps_rate: float = 5.0
+    gps_latency: float = 0.0
+    gyro_bias: float = 0.0
+    """[rad/s]"""
+    gyro_scale_error: float = 0.0
+    group: str = "nominal"
+    """Which family of the sweep the case belongs to (grid, axis, random)."""
+
+    @property
+    def seed(self) -> int:
+        return 1000 + self.case_id
+
+    def plant_params(self, nominal: VehicleParams) -> VehicleParams:
+        p = nominal
+        kw = {"cornering_stiffness_front": p.cornering_stiffness_front * self.cf_scale,
+              "cornering_stiffness_rear": p.cornering_stiffness_rear * self.cr_scale,
+              "mass": p.mass * self.mass_scale, "yaw_inertia": p.yaw_inertia * self.inertia_scale,
+              "mu": self.mu}
+        if p.sprung_mass is not None:  # the body is what gets heavier or lighter
+            kw["sprung_mass"] = p.sprung_mass * self.mass_scale
+        return dataclasses.replace(p, **kw)
+
+    def sensors(self, base: SensorConfig) -> SensorConfig:
+        return dataclasses.replace(base, gps_rate=self.gps_rate, gps_latency=self.gps_latency,
+                                   gyro_bias=self.gyro_bias, gyro_scale_error=self.gyro_scale_error)
+
+
+CASE_FIELDS = tuple(f.name for f in dataclasses.fields(Case))
+
+
+@dataclass(frozen=True)
+class DesignPoint:
+    """What the tuning chooses: the model-following poles and the process-noise intensities."""
+
+    name: str
+    k_beta: float = 5.0
+    k_gamma: float = 5.0
+    q_beta: float = NoiseSettings.q_beta
+    q_yaw_rate: float = NoiseSettings.q_yaw_rate
+    q_d1: float = NoiseSettings.q_d1
+    q_d2: float = NoiseSettings.q_d2
+
+    TUNED = ("k_beta", "k_gamma", "q_beta", "q_yaw_rate", "q_d1", "q_d2")
+
+    def vector(self) -> np.ndarray:
+        return np.array([getattr(self, k) for k in self.TUNED])
+
+    def noise(self, base: NoiseSettings | None = None) -> NoiseSettings:
+        return dataclasses.replace(base or NoiseSettings(), q_beta=self.q_beta, q_yaw_rate=self.q_yaw_rate,
+                                   q_d1=self.q_d1, q_d2=self.q_d2)
+
+    def controller(self, base: TwoDofDesign) -> TwoDofDesign:
+        return dataclasses.replace(base, k_beta=self.k_beta, k_gamma=self.k_gamma)
+
+
+PAPER = DesignPoint("paper")
+"""Seed 003's K_beta = K_gamma = 5 rad/s with the hand-tuned noise intensities of ``dakf``."""
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Everything a worker needs (picklable): the nominal vehicle and the design structure."""
+
+    nominal: VehicleParams
+    plant: str = "two-track"
+    estimator: str = "dakf"
+    dt: float = 1e-3
+    sensors: SensorConfig = SensorConfig()
+    ay_lane_change: float = 4.0
+    """Peak lateral acceleration [m/s^2] the lane change asks for (linear, nominal car)."""
+    ay_step: float = 3.0
+
+    def base_design(self) -> TwoDofDesign:
+        return TwoDofDesign(self.nominal.as_nominal(), dt=self.dt)
+
+    def filter_design(self, point: DesignPoint) -> FilterDesign:
+        base = design_filter(self.estimator, self.nominal, dt=self.dt, latency=self.sensors.gps_latency)
+        return dataclasses.replace(base, noise=point.noise(base.noise))
+
+    def spec(self):
+        return loop_spec(self.nominal, plant=self.plant, estimator=self.filter_design(PAPER), sensors=self.sensors,
+                         dt=self.dt, design=self.base_design())
+
+
+def standard_maneuvers(cfg: SweepConfig, speed: float) -> list[Maneuver]:
+    """The manoeuvre set every case drives: a sine lane change and a step steer, amplitudes
+    for ``ay_lane_change`` / ``ay_step`` on the nominal car at ``speed`` (so the low-friction
+    cases run into the limit, where stability control matters)."""
+    p = cfg.nominal
+    a1 = steer_for_lateral_acceleration(p, speed, cfg.ay_lane_change)
+    a2 = steer_for_lateral_acceleration(p, speed, cfg.ay_step)
+    return [sine_lane_change(speed, a1, start=1.0, period=2.5, duration=MANEUVER_DURATION),
+            step_steer(speed, a2, start=0.5, duration=MANEUVER_DURATION)]
+
+
+def cost_terms(Y: np.ndarray, E: np.ndarray) -> dict:
+    """Mean squares over one rollout (samples x signals arrays as the compiled loop returns)."""
+    it = {k: i for i, k in enumerate(TRUTH)}
+    ie = {k: i for i, k in enumerate(EXTRA)}
+    e_est = E[:, ie["beta_est"]] - Y[:, it["beta"]]
+    e_r = Y[:, it["yaw_rate"]] - E[:, ie["yaw_rate_ref"]]
+    e_b = Y[:, it["beta"]] - E[:, ie["beta_ref"]]
+    return {"ms_est": float(np.mean(e_est**2)), "ms_r": float(np.mean(e_r**2)), "ms_b": float(np.mean(e_b**2)),
+            "ms_nz": float(np.mean(E[:, ie["yaw_moment"]] ** 2))}
+
+
+def cost_value(terms: dict, nz_max: float) -> float:
+    """The cost of one rollout from its mean squares (the tuning's objective uses the same formula)."""
+    return (terms["ms_r"] / R_SCALE**2 + terms["ms_b"] / B_SCALE**2 + terms["ms_est"] / E_SCALE**2
+            + U_WEIGHT * terms["ms_nz"] / nz_max**2)
+
+
+def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bool, float]:
+    """(stable, spectral radius) of the multi-rate loop with the estimator, linearised for the case."""
+    true = case.plant_params(cfg.nominal)
+    v = max(case.speed_kmh / 3.6, 3.0)
+    try:
+        _, st = estimator_loop(point.controller(cfg.base_design()), cfg.filter_design(point), v, true_params=true,
+                               gps_rate=case.gps_rate, dt=cfg.dt)
+    except np.linalg.LinAlgError:
+        return False, float("nan")
+    return st.stable, 1.0 - st.margin
+
+
+def case_inputs(cfg: SweepConfig, case: Case):
+    """Per manoeuvre: (U, z0, p) for the compiled loop, and the theta entries of the case."""
+    prog = program(cfg.spec())
+    true = case.plant_params(cfg.nominal)
+    sens = case.sensors(cfg.sensors)
+    dist = Disturbances(friction=Friction(mu=case.mu))
+    runs = [prog.inputs(true, man, dist, sens, case.seed) for man in standard_maneuvers(cfg, case.speed_kmh / 3.6)]
+    return prog, runs
+
+
+def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint]) -> list[dict]:
+    prog, runs = case_inputs(cfg, case)
+    nz_max = cfg.base_design().nz_max
+    rows = []
+    for point in points:
+        theta = prog.theta(k_beta=point.k_beta, k_gamma=point.k_gamma, noise=point.noise(),
+                           gyro_bias=case.gyro_bias, gyro_scale_error=case.gyro_scale_error, mu_assumed=case.mu)
+        terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
+        it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
+        for U, z0, pv in runs:
+            Y, E = prog.run(U, z0, pv, theta)
+            finite = bool(np.all(np.isfinite(Y)) and np.all(np.isfinite(E)))
+            b = float(np.max(np.abs(Y[:, it]))) if finite else float("inf")
+            bounded = bounded and finite and b < SPIN_BETA
+            beta_max = max(beta_max, b)
+            tt = cost_terms(Y, E) if finite else {k: float("inf") for k in ("ms_est", "ms_r", "ms_b", "ms_nz")}
+            terms.append(tt)
+            costs.append(cost_value(tt, nz_max))
+            if finite:
+                nz_peak = max(nz_peak, float(np.max(np.abs(E[:, ie["yaw_moment"]]))))
+                steer_corr = max(steer_corr, float(np.max(np.abs(E[:, ie["steer"]] - E[:, ie["steer_driver"]]))))
+        lin_stable, rho = linear_verdict(cfg, case, point)
+        mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
+        row = {f: getattr(case, f) for f in CASE_FIELDS}
+        row.update({
+            "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": lin_stable,
+            "spectral_radius": rho, "bounded": bounded,
+            "beta_rms_deg": float(np.degrees(np.sqrt(mean["ms_est"]))),
+            "yaw_rate_rms_err": float(np.sqrt(mean["ms_r"])),
+            "beta_track_rms_deg": float(np.degrees(np.sqrt(mean["ms_b"]))),
+            "yaw_moment_rms": float(np.sqrt(mean["ms_nz"])), "yaw_moment_peak_share": nz_peak / nz_max,
+            "steer_correction_max_deg": float(np.degrees(steer_corr)), "beta_max_deg": float(np.degrees(beta_max)),
+            "cost": float(np.mean(costs)),
+        })
+        rows.append(row)
+    return rows
+
+
+def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint]) -> list[dict]:
+    """Rows for a batch of cases (the unit of work an executor runs)."""
+    out = []
+    for c in cases:
+        out.extend(evaluate_case(cfg, c, points))
+    return out
+
+
+def _batches(cases: list[Case], size: int) -> list[list[Case]]:
+    return [cases[i:i + size] for i in range(0, len(cases), size)]
+
+
+def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *, executor: str = "local",
+              scheduler: str | None = None, workers: int | None = None, progress: bool = True,
+              batch: int = 4) -> list[dict]:
+    """Evaluate every case for every design point; rows sorted by (case_id, design order).
+
+    ``executor``: ``local`` (a process pool of ``workers``, default the CPU count; 1 runs
+    in this process), ``dask`` (a Dask distributed cluster at ``scheduler``, or a local
+    cluster when none is given). Results are identical either way.
+    """
+    batches = _batches(list(cases), batch)
+    results: list[list[dict]] = [None] * len(batches)  # type: ignore[list-item]
+    bar = _progress(len(cases), progress)
+    if executor == "local":
+        workers = workers or os.cpu_count() or 1
+        if workers == 1:
+            for i, b in enumerate(batches):
+                results[i] = evaluate_cases(cfg, b, points)
+                bar.update(len(b))
+        else:
+            program(cfg.spec())  # compile once here; the workers load the cached library
+            import multiprocessing as mp
+            # fork where there is one (no re-import of the caller's script); the pool is torn
+            # down before anything else runs, and casadi starts no threads of its own
+            method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method)) as pool:
+                futs = {pool.submit(evaluate_cases, cfg, b, points): i for i, b in enumerate(batches)}
+                from concurrent.futures import as_completed
+                for f in as_completed(futs):
+                    results[futs[f]] = f.result()
+                    bar.update(len(batches[futs[f]]))
+    elif executor == "dask":
+        from distributed import Client, LocalCluster, as_completed as dask_completed
+        cluster = None
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=False,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)
+        try:
+            program(cfg.spec())
+            futs = [client.submit(evaluate_cases, cfg, b, points, pure=False) for b in batches]
+            index = {f.key: i for i, f in enumerate(futs)}
+            for f in dask_completed(futs):
+                results[index[f.key]] = f.result()
+                bar.update(len(batches[index[f.key]]))
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    else:
+        raise ValueError(f"unknown executor '{executor}'; known: local, dask")
+    bar.close()
+    return [row for rs in results for row in rs]
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, desc="sweep", unit="case", disable=not enabled, leave=False)
+
+
+def sweep_cases(quick: bool = False, seed: int = 7) -> list[Case]:
+    """The sweep's cases: a front x rear stiffness grid, one-at-a-time axes, random combinations.
+
+    Ranges (issue 5): stiffness -40..+40 %, mu 0.3..1, mass and yaw inertia +-20 %, speed,
+    GPS 1..20 Hz, latency 0..150 ms, gyro bias +-5 mrad/s and scale error +-2 %.
+    """
+    cases: list[Case] = []
+
+    def add(group, **kw):
+        cases.append(Case(len(cases), group=group, **kw))
+
+    grid = (0.6, 1.0, 1.4) if quick else (0.6, 0.8, 1.0, 1.2, 1.4)
+    for cf in grid:
+        for cr in grid:
+            add("stiffness", cf_scale=cf, cr_scale=cr)
+    axes = [("mu", (0.3, 0.6) if quick else (0.3, 0.45, 0.6, 0.8)),
+            ("gps_rate", (1.0, 20.0) if quick else (1.0, 2.0, 10.0, 20.0)),
+            ("gps_latency", (0.15,) if quick else (0.05, 0.1, 0.15)),
+            ("speed_kmh", (40.0, 120.0) if quick else (20.0, 40.0, 60.0, 100.0, 120.0, 140.0))]
+    if not quick:
+        axes += [("mass_scale", (0.8, 1.2)), ("inertia_scale", (0.8, 1.2)), ("gyro_bias", (-0.005, 0.005)),
+                 ("gyro_scale_error", (-0.02, 0.02))]
+    for name, values in axes:
+        for v in values:
+            add(name, **{name: v})
+    rng = np.random.default_rng(seed)
+    for _ in range(6 if quick else 120):
+        add("random", cf_scale=rng.uniform(0.6, 1.4), cr_scale=rng.uniform(0.6, 1.4), mu=rng.uniform(0.3, 1.0),
+            mass_scale=rng.uniform(0.8, 1.2), inertia_scale=rng.uniform(0.8, 1.2),
+            speed_kmh=float(rng.choice([40.0, 60.0, 80.0, 100.0, 120.0])),
+            gps_rate=float(rng.choice([1.0, 2.0, 5.0, 10.0, 20.0])),
+            gps_latency=float(rng.choice([0.0, 0.05, 0.1, 0.15])), gyro_bias=rng.uniform(-0.005, 0.005),
+            gyro_scale_error=rng.uniform(-0.02, 0.02))
+    return cases

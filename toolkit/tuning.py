@@ -1,0 +1,257 @@
+"""Worst-case tuning of the model-following poles and the estimator's noise intensities.
+
+Decision variables: ``phi = log(K_beta, K_gamma, q_beta, q_yaw_rate, q_d1, q_d2)``
+(logarithms: all six are positive scale parameters spanning decades). The
+objective is the worst case over a set of tuning cases of the sweep's cost
+(:func:`toolkit.sweep.cost_value`, averaged over the standard manoeuvres), in
+epigraph form for IPOPT::
+
+    min  t   over (phi, t)
+    s.t. J_i(phi) <= t                       every tuning case i
+         sigma_j(phi) >= SIGMA_MIN           stability with a margin, every tuning case j
+         phi within BOUNDS of the start
+
+``J_i`` and its gradient come from differentiable casadi rollouts of the loop: the
+same ``loop_step`` the sweep compiles (plant, sensors, estimator, controller,
+actuators built from the same model definitions), rolled out by ``mapaccum`` over
+the manoeuvre, with ``jacobian(cost, phi)`` by casadi's algorithmic
+differentiation; the cost-and-gradient function is generated as C and compiled
+once (cached). ``sigma_j`` is the decay rate of the sampled multi-rate loop with the
+estimator (``-ln(rho) * f_gps`` from the monodromy's spectral radius), evaluated by
+:func:`toolkit.stability.estimator_loop` with finite differences (a spectral radius
+has no closed-form derivative). Reproducible: the cases carry their seeds and
+IPOPT is deterministic.
+
+The tuning cases are chosen by the caller (:func:`tune` takes them); the design job
+uses the paper design's worst cases of the sweep plus the nominal case, and re-adds
+the tuned design's worst case when it lies outside the set (a cutting-plane round).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import sys
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from plants import TRUTH
+
+from . import closed_loop, sweep
+from .compiled import CFunction, compile_library, source_digest
+from .sweep import B_SCALE, E_SCALE, R_SCALE, U_WEIGHT, Case, DesignPoint, SweepConfig
+
+SIGMA_MIN = 0.01
+"""Smallest decay rate [1/s] the multi-rate loop must keep on every tuning case (time constant <= 100 s)."""
+BOUNDS = 2.0
+"""Each tuned parameter stays within a factor e^2 (7.4) of its start (the paper design)."""
+
+
+def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
+    phi = ca.MX.sym("phi", len(DesignPoint.TUNED))
+    U = ca.MX.sym("U", prog.nin, n)
+    z0 = ca.MX.sym("z0", sum(prog.sizes))
+    pv = ca.MX.sym("p", len(prog.names))
+    rest = ca.MX.sym("rest", 3)  # gyro_bias, gyro_scale_error, mu_assumed
+    th = ca.vertcat(ca.exp(phi), rest)
+    acc = prog.step.mapaccum("tune_acc", n)
+    _, Ys, Es = acc(z0, U, ca.repmat(pv, 1, n), ca.repmat(th, 1, n))
+    it = {k: i for i, k in enumerate(TRUTH)}
+    ie = {k: i for i, k in enumerate(closed_loop.EXTRA)}
+    e_est = Es[ie["beta_est"], :] - Ys[it["beta"], :]
+    e_r = Ys[it["yaw_rate"], :] - Es[ie["yaw_rate_ref"], :]
+    e_b = Ys[it["beta"], :] - Es[ie["beta_ref"], :]
+    nz = Es[ie["yaw_moment"], :]
+    ms = [ca.sumsqr(e) / n for e in (e_est, e_r, e_b, nz)]
+    cost = ms[1] / R_SCALE**2 + ms[2] / B_SCALE**2 + ms[0] / E_SCALE**2 + U_WEIGHT * ms[3] / nz_max**2
+    grad = ca.jacobian(cost, phi)
+    return ca.Function("tune_cost", [phi, U, z0, pv, rest], [cost, grad])
+
+
+class RolloutCost:
+    """Compiled ``(phi, case run) -> (cost, d cost / d phi)`` for one loop structure and rollout length."""
+
+    def __init__(self, cfg: SweepConfig):
+        self.cfg = cfg
+        self.prog = closed_loop.program(cfg.spec())
+        self.n = int(round(sweep.MANEUVER_DURATION / cfg.dt))
+        self.nz_max = cfg.base_design().nz_max
+        self.fn = _cost_function(self.prog, self.n, self.nz_max)
+        src = source_digest(sys.modules[__name__], closed_loop, sweep)
+        key = "tune_" + hashlib.sha256(repr((cfg.spec(), self.n, ca.__version__, src)).encode()).hexdigest()[:20]
+        lib = compile_library([self.fn], key)
+        self.cf = CFunction(ctypes.CDLL(str(lib)), "tune_cost") if lib is not None else None
+
+    def __call__(self, phi: np.ndarray, run, rest: np.ndarray) -> tuple[float, np.ndarray]:
+        U, z0, pv = run
+        if U.shape[0] != self.n:
+            raise ValueError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
+        if self.cf is not None:
+            # casadi matrices are column-major: a C-contiguous (samples x inputs) array is the
+            # (inputs x samples) matrix the function takes, without a copy
+            c, g = np.empty(1), np.empty(len(phi))
+            self.cf([np.ascontiguousarray(phi, float), np.ascontiguousarray(U, float), np.ascontiguousarray(z0, float),
+                     np.ascontiguousarray(pv, float), np.ascontiguousarray(rest, float)], [c, g])
+            return float(c[0]), g
+        c, g = self.fn(phi, U.T, z0, pv, rest)
+        return float(c), np.array(g).ravel()
+
+
+def phi_of(point: DesignPoint) -> np.ndarray:
+    return np.log(point.vector())
+
+
+def point_of(phi: np.ndarray, name: str = "tuned") -> DesignPoint:
+    vals = np.exp(np.asarray(phi, float))
+    return DesignPoint(name, **{k: float(v) for k, v in zip(DesignPoint.TUNED, vals)})
+
+
+def decay_rate(cfg: SweepConfig, case: Case, point: DesignPoint) -> float:
+    """``-ln(rho) f_gps`` [1/s] of the multi-rate loop with the estimator (negative: unstable)."""
+    _, rho = sweep.linear_verdict(cfg, case, point)
+    if not np.isfinite(rho):
+        return -1.0
+    return float(-np.log(rho) * case.gps_rate)
+
+
+@dataclass
+class TuningResult:
+    point: DesignPoint
+    start: DesignPoint
+    cases: list[int]
+    worst_start: float
+    worst_tuned: float
+    costs_start: list[float]
+    costs_tuned: list[float]
+    sigma_tuned: list[float]
+    iterations: int
+    status: str
+    evaluations: int
+
+
+def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, *, max_iter: int = 30,
+         stability_cases: list[Case] | None = None, verbose: bool = False) -> TuningResult:
+    """IPOPT on the epigraph problem above; returns the tuned design point and the figures."""
+    rc = RolloutCost(cfg)
+    data = []
+    for c in cases:
+        prog, runs = sweep.case_inputs(cfg, c)
+        data.append((runs, np.array([c.gyro_bias, c.gyro_scale_error, c.mu])))
+    stab = list(stability_cases if stability_cases is not None else cases)
+    m = len(data)
+    cache: dict = {}
+    counter = {"n": 0}
+
+    def evaluate(phi):
+        key = tuple(np.round(phi, 15))
+        if key not in cache:
+            J, dJ = np.empty(m), np.empty((m, len(phi)))
+            for i, (runs, rest) in enumerate(data):
+                vals = [rc(phi, run, rest) for run in runs]
+                J[i] = np.mean([v[0] for v in vals])
+                dJ[i] = np.mean([v[1] for v in vals], axis=0)
+            J = np.where(np.isfinite(J), J, 1e12)
+            dJ = np.where(np.isfinite(dJ), dJ, 0.0)
+            cache.clear()
+            cache[key] = (J, dJ)
+            counter["n"] += 1
+        return cache[key]
+
+    class Costs(ca.Callback):
+        def __init__(self):
+            ca.Callback.__init__(self)
+            self.construct("costs", {})
+
+        def get_n_in(self):
+            return 1
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(len(DesignPoint.TUNED), 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(m, 1)
+
+        def eval(self, arg):
+            return [evaluate(np.array(arg[0]).ravel())[0]]
+
+        def has_jacobian(self):
+            return True
+
+        def get_jacobian(self, name, inames, onames, opts):
+            class Jac(ca.Callback):
+                def __init__(self):
+                    ca.Callback.__init__(self)
+                    self.construct(name, opts)
+
+                def get_n_in(self):
+                    return 2
+
+                def get_n_out(self):
+                    return 1
+
+                def get_sparsity_in(self, i):
+                    return ca.Sparsity.dense(len(DesignPoint.TUNED), 1) if i == 0 else ca.Sparsity.dense(m, 1)
+
+                def get_sparsity_out(self, i):
+                    return ca.Sparsity.dense(m, len(DesignPoint.TUNED))
+
+                def eval(self, arg):
+                    return [evaluate(np.array(arg[0]).ravel())[1]]
+
+            self._jac = Jac()
+            return self._jac
+
+    class Sigmas(ca.Callback):
+        def __init__(self):
+            ca.Callback.__init__(self)
+            self.construct("sigmas", {"enable_fd": True, "fd_method": "forward"})
+
+        def get_n_in(self):
+            return 1
+
+        def get_n_out(self):
+            return 1
+
+        def get_sparsity_in(self, i):
+            return ca.Sparsity.dense(len(DesignPoint.TUNED), 1)
+
+        def get_sparsity_out(self, i):
+            return ca.Sparsity.dense(len(stab), 1)
+
+        def eval(self, arg):
+            p = point_of(np.array(arg[0]).ravel())
+            return [np.array([decay_rate(cfg, c, p) for c in stab])]
+
+    costs, sigmas = Costs(), Sigmas()
+    phi0 = phi_of(start)
+    x = ca.MX.sym("x", len(phi0) + 1)
+    phi, t = x[:-1], x[-1]
+    g = ca.vertcat(costs(phi) - t, sigmas(phi))
+    solver = ca.nlpsol("tune", "ipopt", {"x": x, "f": t, "g": g},
+                       {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter,
+                        "ipopt.print_level": 5 if verbose else 0, "print_time": False,
+                        "ipopt.tol": 1e-4, "ipopt.acceptable_tol": 1e-3, "ipopt.mu_strategy": "adaptive"})
+    J0, _ = evaluate(phi0)
+    x0 = np.concatenate([phi0, [float(np.max(J0)) * 1.001]])
+    lbx = np.concatenate([phi0 - BOUNDS, [-np.inf]])
+    ubx = np.concatenate([phi0 + BOUNDS, [np.inf]])
+    lbg = np.concatenate([np.full(m, -np.inf), np.full(len(stab), SIGMA_MIN)])
+    ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf)])
+    sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = solver.stats()
+    phi_opt = np.array(sol["x"]).ravel()[:-1]
+    J1, _ = evaluate(phi_opt)
+    tuned = point_of(phi_opt)
+    # IPOPT may stop at a point worse than its start (iteration limit in a non-smooth valley):
+    # keep the start then, so the tuned design is never worse on the tuning cases
+    if np.max(J1) >= np.max(J0):
+        tuned, J1 = point_of(phi0), J0
+    sig = [decay_rate(cfg, c, tuned) for c in stab]
+    return TuningResult(tuned, start, [c.case_id for c in cases], float(np.max(J0)), float(np.max(J1)),
+                        [float(v) for v in J0], [float(v) for v in J1], sig, int(stats.get("iter_count", -1)),
+                        str(stats.get("return_status", "?")), counter["n"])
