@@ -241,10 +241,63 @@ def compare(rows: list[dict]) -> dict:
 
 
 # ------------------------------------------------------------------ the job
+def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, progress, log):
+    """Tuning with cutting-plane rounds over the sweep.
+
+    Round 1 tunes on the paper design's worst cases plus the nominal case. After each
+    round the candidate is swept; cases where the paper design is stable and the
+    candidate is not, and the candidate's worst case, join the tuning set, and the
+    next round starts from the candidate. The result is the candidate with the
+    smallest worst-case cost among those stable wherever the paper design is stable
+    (the paper design itself if no candidate is).
+    """
+    from .tuning import REGRESS_FACTOR, REGRESS_OFFSET, tune
+    paper = sw.PAPER
+    n_tune, n_keep, max_iter, max_rounds = (2, 2, 6, 2) if quick else (5, 4, 20, 4)
+    paper_by = {r["case_id"]: r for r in rows_paper}
+    paper_worst = max(r["cost"] for r in rows_paper)
+    ranked = sorted(rows_paper, key=lambda r: -r["cost"])
+    nominal_id = next(c.case_id for c in cases if c.cf_scale == 1.0 and c.cr_scale == 1.0 and c.group == "stiffness")
+    ids = [r["case_id"] for r in ranked[:n_tune]]
+    ids += [r["case_id"] for r in ranked if r["stable"]][:n_keep]  # the hardest cases the paper design holds
+    if nominal_id not in ids:
+        ids.append(nominal_id)
+    start, rounds, best = paper, [], None
+    for k in range(max_rounds):
+        caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
+                for i in ids]
+        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps)
+        cand = dataclasses.replace(res.point, name="tuned")
+        rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
+                            progress=progress)
+        lost = [r["case_id"] for r in rows if paper_by[r["case_id"]]["stable"] and not r["stable"]]
+        worst = max(rows, key=lambda r: r["cost"])
+        rounds.append(dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
+                           worst_start=res.worst_start, worst_tuned=res.worst_tuned,
+                           sweep_worst_cost=worst["cost"], stability_lost_cases=lost))
+        log(f"  tuning round {k + 1}: {res.iterations} IPOPT iterations, worst case of the sweep "
+            f"{worst['cost']:.4g} (paper {paper_worst:.4g}), stability lost in {len(lost)} case(s)")
+        ok = not lost
+        if ok and (best is None or worst["cost"] < best[2]):
+            best = (cand, rows, worst["cost"])
+        if ok and worst["cost"] < paper_worst and worst["case_id"] in ids:
+            break
+        lost_sorted = sorted(lost, key=lambda i: -next(r["cost"] for r in rows if r["case_id"] == i))
+        new = [i for i in lost_sorted[:3] + [worst["case_id"]] if i not in ids]
+        if not new:
+            break
+        ids.extend(new)
+        start = cand
+    if best is None:  # no candidate kept every stable case: keep the paper design's gains
+        rows = [dict(r, design="tuned") for r in rows_paper]
+        best = (dataclasses.replace(paper, name="tuned"), rows, paper_worst)
+    return best[0], best[1], rounds
+
+
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print) -> dict:
     from .report import write_report
-    from .tuning import SIGMA_MIN, BOUNDS, tune
+    from .tuning import SIGMA_MIN, BOUNDS
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -256,31 +309,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
                               progress=progress)
     log(f"  sweep of the paper design: {time.perf_counter() - t_start:.1f} s")
-    n_tune = 3 if quick else 6
-    ranked = sorted(rows_paper, key=lambda r: -r["cost"])
-    nominal_id = next(c.case_id for c in cases if c.cf_scale == 1.0 and c.cr_scale == 1.0 and c.group == "stiffness")
-    ids = [r["case_id"] for r in ranked[:n_tune]]
-    if nominal_id not in ids:
-        ids.append(nominal_id)
-    max_iter = 6 if quick else 25
-    res = tune(cfg, [cases[i] for i in ids], paper, max_iter=max_iter)
-    rounds = [dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
-                   worst_start=res.worst_start, worst_tuned=res.worst_tuned)]
-    tuned = dataclasses.replace(res.point, name="tuned")
-    rows_tuned = sw.run_sweep(cfg, cases, [tuned], executor=executor, scheduler=scheduler, workers=workers,
-                              progress=progress)
-    if not quick:  # one cutting-plane round: the tuned design's worst case joins the tuning set
-        worst_id = max(rows_tuned, key=lambda r: r["cost"])["case_id"]
-        if worst_id not in ids:
-            ids.append(worst_id)
-            res = tune(cfg, [cases[i] for i in ids], tuned, max_iter=max_iter)
-            rounds.append(dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
-                               worst_start=res.worst_start, worst_tuned=res.worst_tuned))
-            cand = dataclasses.replace(res.point, name="tuned")
-            rows_cand = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
-                                     progress=progress)
-            if max(r["cost"] for r in rows_cand) < max(r["cost"] for r in rows_tuned):
-                tuned, rows_tuned = cand, rows_cand
+    tuned, rows_tuned, rounds = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
+                                             progress, log)
     log(f"  tuning and sweep of the tuned design: {time.perf_counter() - t_start:.1f} s")
     rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
     summary = compare(rows)

@@ -147,7 +147,9 @@ def build(data: dict) -> Doc:
     D.p(f"Tuning: {t['method']}. Decision variables: {t['decision_variables']}, each within a factor "
         f"{fmt(t['bounds_factor'])} of the paper design; sigma_min {fmt(t['sigma_min_1_s'])} 1/s. Cost: {t['cost']}.")
     D.table([{"round": i + 1, "tuning cases": " ".join(str(c) for c in r["cases"]), "IPOPT iterations":
-              r["iterations"], "status": r["status"], "worst start": r["worst_start"], "worst tuned": r["worst_tuned"]}
+              r["iterations"], "status": r["status"], "worst of tuning cases, start": r["worst_start"],
+              "worst of tuning cases, tuned": r["worst_tuned"], "worst of the sweep": r["sweep_worst_cost"],
+              "stability lost (cases)": " ".join(str(c) for c in r["stability_lost_cases"]) or "-"}
              for i, r in enumerate(t["rounds"])])
 
     D.h(2, "Analysis across speed")
