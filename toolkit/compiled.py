@@ -16,6 +16,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
 import warnings
 from dataclasses import fields
 from functools import lru_cache
@@ -173,11 +174,8 @@ class CFunction:
         work.argtypes = [ctypes.POINTER(ctypes.c_longlong)] * 4
         if work(*[ctypes.byref(s) for s in szs]) != 0:
             raise RuntimeError(f"{name}_work failed")
-        sz_arg, sz_res, sz_iw, sz_w = (s.value for s in szs)
-        self._arg = (ctypes.c_void_p * max(sz_arg, 1))()
-        self._res = (ctypes.c_void_p * max(sz_res, 1))()
-        self._iw = np.zeros(max(sz_iw, 1), dtype=np.int64)
-        self._w = np.zeros(max(sz_w, 1), dtype=np.float64)
+        self._sizes = tuple(s.value for s in szs)
+        self._local = threading.local()
         self._call = getattr(lib, name)
         self._call.restype = ctypes.c_int
         self._call.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
@@ -186,13 +184,25 @@ class CFunction:
             f.restype = ctypes.c_longlong
             setattr(self, what, int(f()))
 
+    def _buffers(self):
+        """Work memory of the calling thread: ctypes releases the GIL during the call, so threads
+        (a Dask worker's, say) calling the same function at once must not share it."""
+        b = getattr(self._local, "b", None)
+        if b is None:
+            sz_arg, sz_res, sz_iw, sz_w = self._sizes
+            b = ((ctypes.c_void_p * max(sz_arg, 1))(), (ctypes.c_void_p * max(sz_res, 1))(),
+                 np.zeros(max(sz_iw, 1), dtype=np.int64), np.zeros(max(sz_w, 1), dtype=np.float64))
+            self._local.b = b
+        return b
+
     def __call__(self, args: list, results: list) -> None:
         """``args``/``results`` are float64 C-contiguous arrays (or ctypes addresses) in casadi's layout."""
+        arg, res, iw, w = self._buffers()
         for i, a in enumerate(args):
-            self._arg[i] = a if isinstance(a, int) else a.ctypes.data
+            arg[i] = a if isinstance(a, int) else a.ctypes.data
         for i, r in enumerate(results):
-            self._res[i] = r if isinstance(r, int) else r.ctypes.data
-        if self._call(self._arg, self._res, self._iw.ctypes.data, self._w.ctypes.data, 0) != 0:
+            res[i] = r if isinstance(r, int) else r.ctypes.data
+        if self._call(arg, res, iw.ctypes.data, w.ctypes.data, 0) != 0:
             raise RuntimeError("compiled evstab function reported an error")
 
 

@@ -224,8 +224,8 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint]) -> li
         mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
         row = {f: getattr(case, f) for f in CASE_FIELDS}
         row.update({
-            "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": lin_stable,
-            "spectral_radius": rho, "bounded": bounded,
+            "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": bool(lin_stable),
+            "spectral_radius": rho, "bounded": bool(bounded),
             "beta_rms_deg": float(np.degrees(np.sqrt(mean["ms_est"]))),
             "yaw_rate_rms_err": float(np.sqrt(mean["ms_r"])),
             "beta_track_rms_deg": float(np.degrees(np.sqrt(mean["ms_b"]))),

@@ -1,0 +1,213 @@
+"""The design job: sweep vs single runs, casadi rollouts vs the numpy simulator, executors, report vs JSON."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from controllers.two_dof import TwoDofController
+from plants import TRUTH, load_vehicle
+from plants.disturbances import Disturbances, Friction
+from toolkit import sweep as sw
+from toolkit.closed_loop import EXTRA
+from toolkit.simulator import simulate
+
+P = load_vehicle("compact-ev")
+CFG = sw.SweepConfig(P)
+TUNED = sw.DesignPoint("tuned", k_beta=2.0, k_gamma=12.0, q_beta=2e-5, q_yaw_rate=0.01, q_d1=0.005, q_d2=0.03)
+# model errors of every kind at once, GPS at 20 Hz with three fixes in flight (150 ms)
+CASE_A = sw.Case(0, cf_scale=0.8, cr_scale=1.2, mu=0.8, mass_scale=1.1, inertia_scale=0.9, speed_kmh=60.0,
+                 gps_rate=20.0, gps_latency=0.15, gyro_bias=0.003, gyro_scale_error=0.01, group="test")
+CASE_B = sw.Case(1, cf_scale=1.2, cr_scale=0.9, mu=0.7, speed_kmh=80.0, gps_rate=2.0, gps_latency=0.05,
+                 group="test")
+
+
+def _stepped(case: sw.Case, point: sw.DesignPoint, man):
+    """The same case run by the simulator's Python-stepped loop (numpy components one sample at a time)."""
+    true = case.plant_params(CFG.nominal)
+    r = simulate(true, CFG.plant, man, disturbances=Disturbances(friction=Friction(mu=case.mu)),
+                 sensors=case.sensors(CFG.sensors), seed=case.seed,
+                 controller=TwoDofController(point.controller(CFG.base_design())),
+                 estimator=CFG.filter_design(point), nominal=CFG.nominal)
+    Y = np.column_stack([r.truth[k] for k in TRUTH])
+    E = np.column_stack([r.commands[k] for k in EXTRA])
+    return Y, E
+
+
+@pytest.mark.parametrize("case", [CASE_A, CASE_B], ids=["all-errors-20Hz-150ms", "mu0.7-2Hz"])
+def test_sweep_row_equals_direct_single_case_runs(case):
+    row = sw.evaluate_case(CFG, case, [TUNED])[0]
+    terms = [sw.cost_terms(*_stepped(case, TUNED, man)) for man in sw.standard_maneuvers(CFG, case.speed_kmh / 3.6)]
+    nz_max = CFG.base_design().nz_max
+    ms = {k: np.mean([t[k] for t in terms]) for k in terms[0]}
+    # same equations and noise, evaluation order differs: rounding only (1e-9 relative)
+    assert row["beta_rms_deg"] == pytest.approx(np.degrees(np.sqrt(ms["ms_est"])), rel=1e-9)
+    assert row["yaw_rate_rms_err"] == pytest.approx(np.sqrt(ms["ms_r"]), rel=1e-9)
+    assert row["cost"] == pytest.approx(np.mean([sw.cost_value(t, nz_max) for t in terms]), rel=1e-9)
+    assert row["bounded"] and row["design"] == "tuned"
+    for f in sw.CASE_FIELDS:
+        assert row[f] == getattr(case, f)
+
+
+def test_casadi_rollout_cost_and_gradient_equal_the_numpy_simulator():
+    from toolkit.tuning import RolloutCost, phi_of
+    rc = RolloutCost(CFG)
+    case = CASE_A
+    _, runs = sw.case_inputs(CFG, case)
+    rest = np.array([case.gyro_bias, case.gyro_scale_error, case.mu])
+    phi = phi_of(TUNED)
+    man = sw.standard_maneuvers(CFG, case.speed_kmh / 3.6)[0]
+    J, g = rc(phi, runs[0], rest)
+    ref = sw.cost_value(sw.cost_terms(*_stepped(case, TUNED, man)), CFG.base_design().nz_max)
+    assert J == pytest.approx(ref, rel=1e-9)  # differentiable casadi rollout = numpy simulator, rounding only
+    # AD gradient vs central differences; step 1e-5 in log space: truncation ~1e-10, the loop's
+    # branches (gating, saturation) stay put for so small a step -> 1e-4 relative
+    for i in range(len(phi)):
+        e = np.zeros(len(phi))
+        e[i] = 1e-5
+        fd = (rc(phi + e, runs[0], rest)[0] - rc(phi - e, runs[0], rest)[0]) / 2e-5
+        assert g[i] == pytest.approx(fd, rel=1e-4, abs=1e-8 * abs(J))
+
+
+def test_dask_and_local_executors_give_identical_rows():
+    pytest.importorskip("distributed")
+    cases = [CASE_A, CASE_B, sw.Case(2, group="nominal")]
+    local = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], workers=2, progress=False, batch=1)
+    dask = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], executor="dask", workers=2, progress=False, batch=2)
+    serial = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], workers=1, progress=False)
+    assert local == dask == serial  # exact: same seeds, same compiled code, order restored
+
+
+def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
+    from plants.sensors import SensorConfig, gps_fix_mask
+    from toolkit.closed_loop import latch_schedule
+    t = np.arange(2000) * 1e-3
+    fix = gps_fix_mask(t, SensorConfig(gps_rate=20.0))
+    sched = latch_schedule(fix, 0.15, 1e-3)
+    assert sched.shape == (8, 2000) and sched[:4].sum() == fix.sum() == sched[4:].sum()
+    with pytest.raises(ValueError, match="fix periods"):
+        latch_schedule(fix, 0.2, 1e-3)
+
+
+def test_quick_cases_cover_the_issue_ranges():
+    cases = sw.sweep_cases(quick=False)
+    cf = [c.cf_scale for c in cases]
+    assert min(cf) == pytest.approx(0.6) and max(cf) == pytest.approx(1.4)
+    assert min(c.mu for c in cases) == pytest.approx(0.3) and max(c.gps_rate for c in cases) == 20.0
+    assert min(c.gps_rate for c in cases) == 1.0 and max(c.gps_latency for c in cases) == pytest.approx(0.15)
+    assert {round(c.mass_scale, 6) for c in cases if c.group == "mass_scale"} == {0.8, 1.2}
+    assert len({c.case_id for c in cases}) == len(cases)
+
+
+# ----------------------------------------------------------------- the whole job (quick)
+@pytest.fixture(scope="module")
+def design_dir(tmp_path_factory):
+    from toolkit.cli import main
+    out = tmp_path_factory.mktemp("design")
+    assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+    return out
+
+
+def test_design_outputs_and_the_tuned_design_beats_the_paper(design_dir):
+    from toolkit.design_job import read_csv
+    doc = json.loads((design_dir / "design.json").read_text())
+    rows = read_csv(design_dir / "sweep.csv")
+    cases = sw.sweep_cases(quick=True)
+    assert len(rows) == 2 * len(cases) and {r["design"] for r in rows} == {"paper", "tuned"}
+    for key in ("stable", "beta_rms_deg", "yaw_rate_rms_err", "cost", "cf_scale", "mu", "gps_latency"):
+        assert key in rows[0]
+    by = {(r["case_id"], r["design"]): r for r in rows}
+    paper_worst = max(r["cost"] for r in rows if r["design"] == "paper")
+    tuned_worst = max(r["cost"] for r in rows if r["design"] == "tuned")
+    assert doc["sweep"]["paper"]["worst_cost"] == paper_worst
+    assert doc["sweep"]["tuned"]["worst_cost"] == tuned_worst
+    assert tuned_worst < paper_worst
+    assert all(by[(c.case_id, "tuned")]["stable"] for c in cases if by[(c.case_id, "paper")]["stable"])
+    import pyarrow.parquet as pq
+    assert pq.read_table(design_dir / "sweep.parquet").num_rows == len(rows)
+
+
+def test_design_json_loads_into_designs_that_match_it(design_dir):
+    from toolkit.design_job import load_design
+    d = load_design(design_dir)
+    tuned = d.document["designs"]["tuned"]
+    assert d.controller.k_beta == tuned["k_beta"] and d.controller.k_gamma == tuned["k_gamma"]
+    assert d.filter.noise.q_d1 == tuned["q_d1"] and d.filter.method == "dakf"
+    assert d.params.digest() == d.document["vehicle"]["params_digest"]
+
+
+def test_load_design_names_the_file_and_field(tmp_path, design_dir):
+    from toolkit.design_job import load_design
+    doc = json.loads((design_dir / "design.json").read_text())
+    doc["format"] = "something-else"
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"design\.json: field 'format'"):
+        load_design(tmp_path)
+    del doc["format"]
+    doc["format"] = "evstab-design/1"
+    del doc["controller"]
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="missing field 'controller'"):
+        load_design(tmp_path)
+
+
+def test_report_numbers_are_the_design_json_numbers(design_dir):
+    from toolkit.report import fmt
+    doc = json.loads((design_dir / "design.json").read_text())
+    md = (design_dir / "report.md").read_text()
+    html = (design_dir / "report.html").read_text()
+    s = doc["sweep"]
+    for text in (md, html):
+        assert f"paper design cost {fmt(s['paper']['worst_cost'])}" in text
+        assert f"tuned design cost {fmt(s['tuned']['worst_cost'])}" in text
+        assert f"paper {fmt(s['paper']['stable_cases'])} of {fmt(s['cases'])}" in text
+        for k, v in doc["designs"]["tuned"].items():
+            assert f"| {k} | {fmt(doc['designs']['paper'][k])} | {fmt(v)} |" in md
+        assert doc["vehicle"]["params_digest"] in text and doc["provenance"]["command"] in text
+    assert "data:image/png;base64," in html and "src=\"figures/" not in html  # self-contained
+    for name in ("poles_s", "poles_z", "sweep_heatmaps", "responses", "cost_paper_vs_tuned"):
+        assert (design_dir / "figures" / f"{name}.png").stat().st_size > 5000
+
+
+def test_report_command_redraws_the_same_report(design_dir, tmp_path):
+    from toolkit.cli import main
+    copy = tmp_path / "copy"
+    shutil.copytree(design_dir, copy)
+    (copy / "report.md").unlink()
+    (copy / "report.html").unlink()
+    assert main(["report", str(copy)]) == 0
+    assert (copy / "report.md").read_text() == (design_dir / "report.md").read_text()
+    assert main(["report", str(tmp_path / "nothing")]) == 2
+
+
+def test_design_cli_rejects_a_scheduler_without_dask(tmp_path, capsys):
+    from toolkit.cli import main
+    assert main(["design", "--vehicle", "compact-ev", "--out", str(tmp_path), "--scheduler", "tcp://x:1"]) == 2
+    assert "--scheduler needs --executor dask" in capsys.readouterr().err
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def test_report_html_renders_in_headless_chromium(design_dir, tmp_path):
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("no Chromium on this machine (.ci/run installs it from the system packages)")
+    shot = tmp_path / "report.png"
+    res = subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                          f"--screenshot={shot}", "--window-size=1200,3000",
+                          (design_dir / "report.html").resolve().as_uri()],
+                         capture_output=True, text=True, timeout=120)
+    assert shot.is_file(), res.stderr[-2000:]
+    import matplotlib.image
+    img = matplotlib.image.imread(str(shot))
+    assert img.shape[0] == 3000 and img.shape[1] == 1200
+    # a rendered page has text, tables and figures: far from one flat colour
+    assert float(np.std(img[..., :3])) > 0.05
