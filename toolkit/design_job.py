@@ -253,7 +253,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     """
     from .tuning import REGRESS_FACTOR, REGRESS_OFFSET, tune
     paper = sw.PAPER
-    n_tune, n_keep, max_iter, max_rounds = (2, 2, 6, 2) if quick else (5, 4, 20, 4)
+    n_tune, n_keep, max_iter, max_rounds = (2, 2, 6, 2) if quick else (5, 4, 15, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}
     paper_worst = max(r["cost"] for r in rows_paper)
     ranked = sorted(rows_paper, key=lambda r: -r["cost"])
@@ -266,7 +266,8 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     for k in range(max_rounds):
         caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
                 for i in ids]
-        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps)
+        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps,
+                   workers=workers if executor == "local" else None)
         cand = dataclasses.replace(res.point, name="tuned")
         rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
                             progress=progress)
@@ -280,7 +281,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
         ok = not lost
         if ok and (best is None or worst["cost"] < best[2]):
             best = (cand, rows, worst["cost"])
-        if ok and worst["cost"] < paper_worst and worst["case_id"] in ids:
+        if ok and worst["cost"] < paper_worst:  # what the design must achieve; further rounds cost minutes
             break
         lost_sorted = sorted(lost, key=lambda i: -next(r["cost"] for r in rows if r["case_id"] == i))
         new = [i for i in lost_sorted[:3] + [worst["case_id"]] if i not in ids]

@@ -199,7 +199,8 @@ def case_inputs(cfg: SweepConfig, case: Case):
     return prog, runs
 
 
-def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint]) -> list[dict]:
+def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint], *, linear: bool = True) -> list[dict]:
+    """One row per design point: the case, the rollouts' metrics and (``linear``) the linear verdict."""
     prog, runs = case_inputs(cfg, case)
     nz_max = cfg.base_design().nz_max
     rows = []
@@ -220,7 +221,7 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint]) -> li
             if finite:
                 nz_peak = max(nz_peak, float(np.max(np.abs(E[:, ie["yaw_moment"]]))))
                 steer_corr = max(steer_corr, float(np.max(np.abs(E[:, ie["steer"]] - E[:, ie["steer_driver"]]))))
-        lin_stable, rho = linear_verdict(cfg, case, point)
+        lin_stable, rho = linear_verdict(cfg, case, point) if linear else (True, float("nan"))
         mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
         row = {f: getattr(case, f) for f in CASE_FIELDS}
         row.update({
@@ -237,12 +238,20 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint]) -> li
     return rows
 
 
-def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint]) -> list[dict]:
+def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
     """Rows for a batch of cases (the unit of work an executor runs)."""
     out = []
     for c in cases:
-        out.extend(evaluate_case(cfg, c, points))
+        out.extend(evaluate_case(cfg, c, points, linear=linear))
     return out
+
+
+def single_threaded_blas() -> None:
+    """Process-pool initializer: one BLAS thread per worker. The matrices here are at most
+    13 x 13, and two workers with two BLAS threads each on two cores ran the linear verdicts
+    2x slower than one worker (measured)."""
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(1)
 
 
 def _batches(cases: list[Case], size: int) -> list[list[Case]]:
@@ -251,7 +260,7 @@ def _batches(cases: list[Case], size: int) -> list[list[Case]]:
 
 def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *, executor: str = "local",
               scheduler: str | None = None, workers: int | None = None, progress: bool = True,
-              batch: int = 4) -> list[dict]:
+              batch: int = 4, linear: bool = True) -> list[dict]:
     """Evaluate every case for every design point; rows sorted by (case_id, design order).
 
     ``executor``: ``local`` (a process pool of ``workers``, default the CPU count; 1 runs
@@ -265,7 +274,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
         workers = workers or os.cpu_count() or 1
         if workers == 1:
             for i, b in enumerate(batches):
-                results[i] = evaluate_cases(cfg, b, points)
+                results[i] = evaluate_cases(cfg, b, points, linear)
                 bar.update(len(b))
         else:
             program(cfg.spec())  # compile once here; the workers load the cached library
@@ -273,8 +282,9 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
             # fork where there is one (no re-import of the caller's script); the pool is torn
             # down before anything else runs, and casadi starts no threads of its own
             method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method)) as pool:
-                futs = {pool.submit(evaluate_cases, cfg, b, points): i for i, b in enumerate(batches)}
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method),
+                                     initializer=single_threaded_blas) as pool:
+                futs = {pool.submit(evaluate_cases, cfg, b, points, linear): i for i, b in enumerate(batches)}
                 from concurrent.futures import as_completed
                 for f in as_completed(futs):
                     results[futs[f]] = f.result()
@@ -290,7 +300,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
             client = Client(scheduler)
         try:
             program(cfg.spec())
-            futs = [client.submit(evaluate_cases, cfg, b, points, pure=False) for b in batches]
+            futs = [client.submit(evaluate_cases, cfg, b, points, linear, pure=False) for b in batches]
             index = {f.key: i for i, f in enumerate(futs)}
             for f in dask_completed(futs):
                 results[index[f.key]] = f.result()

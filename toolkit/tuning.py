@@ -31,7 +31,10 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import multiprocessing as mp
+import os
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import casadi as ca
@@ -135,9 +138,28 @@ class TuningResult:
     evaluations: int
 
 
+_WORKER: dict = {}
+"""Rollout cost and case data of the current tuning, inherited by forked worker processes."""
+
+
+def _eval_subset(phi: np.ndarray, idx: list[int]):
+    rc, data = _WORKER["rc"], _WORKER["data"]
+    out = []
+    for i in idx:
+        runs, rest = data[i]
+        vals = [rc(phi, run, rest) for run in runs]
+        out.append((i, float(np.mean([v[0] for v in vals])), np.mean([v[1] for v in vals], axis=0)))
+    return out
+
+
+def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[float]:
+    p = point_of(phi)
+    return [decay_rate(cfg, c, p) for c in cases]
+
+
 def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, *, max_iter: int = 30,
          stability_cases: list[Case] | None = None, caps: list[float] | None = None,
-         verbose: bool = False) -> TuningResult:
+         verbose: bool = False, workers: int | None = None) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
 
     ``caps``: per tuning case an upper bound on its cost (``inf``: none). The design job
@@ -155,15 +177,27 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
     m = len(data)
     cache: dict = {}
     counter = {"n": 0}
+    _WORKER.update(rc=rc, data=data)
+    workers = workers or os.cpu_count() or 1
+    pool = None
+    if workers > 1 and "fork" in mp.get_all_start_methods():
+        # the cases' rollouts (and the stability rates) in parallel; forked workers inherit
+        # the compiled cost and the case data, so only phi travels
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"),
+                                   initializer=sweep.single_threaded_blas)
+    parts = [list(range(k, m, workers)) for k in range(workers)] if pool else [list(range(m))]
 
     def evaluate(phi):
         key = tuple(np.round(phi, 15))
         if key not in cache:
             J, dJ = np.empty(m), np.empty((m, len(phi)))
-            for i, (runs, rest) in enumerate(data):
-                vals = [rc(phi, run, rest) for run in runs]
-                J[i] = np.mean([v[0] for v in vals])
-                dJ[i] = np.mean([v[1] for v in vals], axis=0)
+            if pool is not None:
+                results = [r for f in [pool.submit(_eval_subset, phi, idx) for idx in parts if idx]
+                           for r in f.result()]
+            else:
+                results = _eval_subset(phi, list(range(m)))
+            for i, c, gr in results:
+                J[i], dJ[i] = c, gr
             J = np.where(np.isfinite(J), J, 1e12)
             dJ = np.where(np.isfinite(dJ), dJ, 0.0)
             cache.clear()
@@ -218,10 +252,30 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
             self._jac = Jac()
             return self._jac
 
+    n_phi = len(DesignPoint.TUNED)
+    sig_cache: dict = {}
+
+    def sigma_values(phi):
+        key = tuple(np.round(phi, 15))
+        if key not in sig_cache:
+            sig_cache[key] = np.array(_sigma_subset(cfg, stab, phi))
+        return sig_cache[key]
+
+    def sigma_jacobian(phi):
+        """Forward differences (step 1e-4 in log space), the perturbed points spread over the pool."""
+        h = 1e-4
+        base = sigma_values(phi)
+        pts = [phi + h * np.eye(n_phi)[k] for k in range(n_phi)]
+        if pool is not None:
+            cols = [f.result() for f in [pool.submit(_sigma_subset, cfg, stab, q) for q in pts]]
+        else:
+            cols = [_sigma_subset(cfg, stab, q) for q in pts]
+        return np.column_stack([(np.array(c) - base) / h for c in cols])
+
     class Sigmas(ca.Callback):
         def __init__(self):
             ca.Callback.__init__(self)
-            self.construct("sigmas", {"enable_fd": True, "fd_method": "forward"})
+            self.construct("sigmas", {})
 
         def get_n_in(self):
             return 1
@@ -230,14 +284,40 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
             return 1
 
         def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(len(DesignPoint.TUNED), 1)
+            return ca.Sparsity.dense(n_phi, 1)
 
         def get_sparsity_out(self, i):
             return ca.Sparsity.dense(len(stab), 1)
 
         def eval(self, arg):
-            p = point_of(np.array(arg[0]).ravel())
-            return [np.array([decay_rate(cfg, c, p) for c in stab])]
+            return [sigma_values(np.array(arg[0]).ravel())]
+
+        def has_jacobian(self):
+            return True
+
+        def get_jacobian(self, name, inames, onames, opts):
+            class Jac(ca.Callback):
+                def __init__(self):
+                    ca.Callback.__init__(self)
+                    self.construct(name, opts)
+
+                def get_n_in(self):
+                    return 2
+
+                def get_n_out(self):
+                    return 1
+
+                def get_sparsity_in(self, i):
+                    return ca.Sparsity.dense(n_phi, 1) if i == 0 else ca.Sparsity.dense(len(stab), 1)
+
+                def get_sparsity_out(self, i):
+                    return ca.Sparsity.dense(len(stab), n_phi)
+
+                def eval(self, arg):
+                    return [sigma_jacobian(np.array(arg[0]).ravel())]
+
+            self._jac = Jac()
+            return self._jac
 
     costs, sigmas = Costs(), Sigmas()
     phi0 = phi_of(start)
@@ -256,10 +336,16 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
     ubx = np.concatenate([phi0 + BOUNDS, [np.inf]])
     lbg = np.concatenate([np.full(m, -np.inf), np.full(len(stab), SIGMA_MIN), np.full(m, -np.inf)])
     ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), caps_arr])
-    sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-    stats = solver.stats()
+    try:
+        sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        stats = solver.stats()
+    finally:
+        if pool is not None:
+            pool.shutdown()
+        pool = None
     phi_opt = np.array(sol["x"]).ravel()[:-1]
     J1, _ = evaluate(phi_opt)
+    _WORKER.clear()
     tuned = point_of(phi_opt)
     # IPOPT may stop at a point worse than its start (iteration limit in a non-smooth valley):
     # keep the start then, so the tuned design is never worse on the tuning cases
