@@ -253,7 +253,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     """
     from .tuning import REGRESS_FACTOR, REGRESS_OFFSET, tune
     paper = sw.PAPER
-    n_tune, n_keep, max_iter, max_rounds = (2, 2, 6, 2) if quick else (4, 8, 25, 3)
+    n_tune, n_keep, max_iter, max_rounds = (2, 2, 12, 2) if quick else (4, 8, 25, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}
     paper_worst = max(r["cost"] for r in rows_paper)
     ranked = sorted(rows_paper, key=lambda r: -r["cost"])

@@ -113,6 +113,7 @@ def build(data: dict) -> Doc:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib import patheffects
 
     doc, sweep = data["design"], data["sweep"]
     s = doc["sweep"]
@@ -211,7 +212,8 @@ def build(data: dict) -> Doc:
                 ax.set_ylabel("rear cornering stiffness error")
                 ax.set_title(f"{dn}: {label}")
                 for (yy, xx), v in np.ndenumerate(M):
-                    ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7)
+                    ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7, color="k",
+                            path_effects=[patheffects.withStroke(linewidth=2, foreground="w")])
                 fig.colorbar(im, ax=ax)
         fig.tight_layout()
         D.figure("sweep_heatmaps", fig, "Stiffness grid at 80 km/h, mu 1: stability verdict and sideslip "
