@@ -69,6 +69,9 @@ class TwoDofDesign:
     disturbance_filter_tau: float = 0.0
     """First-order low-pass [s] on the disturbance estimates before rejection (0 = none)."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
+    schedule: object = None
+    """A :class:`controllers.schedule.SpeedSchedule` (firmware: coefficients and reference gains from
+    tables), or None (exact model)."""
 
     def __post_init__(self):
         if not (self.k_beta > 0 and self.k_gamma > 0):
@@ -116,10 +119,14 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     v = s.speed
     vm = o.fmax(v, d.min_speed)
     # reference model (seed 003 eq. 23-24) with the friction limit, then the lag
-    L, g = p.wheelbase, p.stability_factor
-    den = 1.0 + g * vm * vm
-    kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
-    kg = vm / (L * den)
+    if d.schedule is not None:
+        sched = d.schedule.values(vm, o)
+        kb, kg = sched[7], sched[8]
+    else:
+        L, g = p.wheelbase, p.stability_factor
+        den = 1.0 + g * vm * vm
+        kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
+        kg = vm / (L * den)
     beta_ss, gamma_ss = kb * s.steer_driver, kg * s.steer_driver
     limit = d.friction_margin * s.mu * G / vm
     mag = o.fabs(gamma_ss)
@@ -130,7 +137,10 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
     xb_next, xr_next = beta_ss + (xb - beta_ss) * lag, gamma_ss + (xr - gamma_ss) * lag
     # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d)
-    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
+    if d.schedule is not None:
+        a11, a12, a21, a22, b11, b21, b22 = sched[:7]
+    else:
+        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
     e_b = o.fmin(o.fmax(xb - s.beta, -d.beta_error_max), d.beta_error_max) if np.isfinite(d.beta_error_max) \
         else xb - s.beta
     e_r = xr - s.yaw_rate

@@ -85,6 +85,11 @@ def cmd_estimate(args) -> int:
     from .estimation.kalman import OUTPUTS
     from .logio import read_log_csv, write_log_table
 
+    if (args.vehicle is None) == (args.design is None):
+        raise EvstabError("give --vehicle (a filter designed from its nominal parameters) or --design (the "
+                          "filter of an 'evstab design' folder, as exported), not both")
+    if args.design is not None:
+        return _estimate_designed(args)
     p = load_vehicle(args.vehicle)
     needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay")  # plus the schema's required columns
     log = read_log_csv(args.log, columns=needed).without_truth()
@@ -100,6 +105,66 @@ def cmd_estimate(args) -> int:
     used = int(np.nansum(est["gps_used"]))
     print(f"{args.method} on {args.log}: {len(est.t)} samples, {fixes} GPS fixes, {used} used "
           f"({est.backend} backend) -> {args.out}")
+    return 0
+
+
+ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std", "gps_used")
+
+
+def _replay(args):
+    from .firmware.export import ecu_from_design
+    from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
+    from .logio import read_log_csv
+
+    d, _ = ecu_from_design(args.design)
+    log = read_log_csv(args.log, columns=LOG_COLUMNS).without_truth()
+    mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
+    U = ecu_inputs(log, mu, d.filter.dt_nominal)
+    prog = ecu_program(d)
+    return d, log, U, prog.run(U), prog.backend
+
+
+def _estimate_designed(args) -> int:
+    from .firmware.ecu import OUTPUT_NAMES
+    from .logio import write_log_table
+
+    if args.method != "dakf" or args.gps_latency != 0.0:
+        raise EvstabError("--method and --gps-latency come from the design with --design; leave them out")
+    d, log, U, Y, backend = _replay(args)
+    cols = {"t": log["t"]}
+    cols.update({name: Y[:, OUTPUT_NAMES.index(name)] for name in ESTIMATE_COLUMNS})
+    write_log_table(args.out, cols)
+    print(f"{d.filter.method} (designed, {args.design}) on {args.log}: {len(U)} samples, "
+          f"{int(U[:, 5].sum())} GPS fixes, {int(cols['gps_used'].sum())} used ({backend} backend) -> {args.out}")
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from .firmware.csource import write_inputs_csv
+    from .firmware.ecu import OUTPUT_NAMES
+    from .logio import atomic_write, write_log_table
+
+    d, log, U, Y, backend = _replay(args)
+    cols = {"t": log["t"]}
+    cols.update({name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)})
+    if args.inputs_out:
+        atomic_write(args.inputs_out, lambda fh: write_inputs_csv(fh, U))
+    write_log_table(args.out, cols)
+    i_n = OUTPUT_NAMES.index("yaw_moment_cmd")
+    print(f"replay of {args.log} through {args.design}: {len(U)} samples ({backend} backend); max |steer_cmd| "
+          f"{np.degrees(np.abs(Y[:, OUTPUT_NAMES.index('steer_cmd')]).max()):.3f} deg, max |yaw_moment_cmd| "
+          f"{np.abs(Y[:, i_n]).max():.1f} N m -> {args.out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    import shlex
+    from .firmware.export import FORMATS, export_design
+
+    formats = FORMATS if args.format == "all" else (args.format,)
+    command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    paths = export_design(args.design_dir, args.out, formats, args.precision, command)
+    print(f"exported {args.design_dir} ({args.precision}): " + ", ".join(p.name for p in paths) + f" -> {args.out}")
     return 0
 
 
@@ -182,11 +247,28 @@ def build_parser() -> argparse.ArgumentParser:
     from .estimation import METHODS
     sp = sub.add_parser("estimate", help="estimate sideslip, yaw rate and yaw from a drive log")
     sp.add_argument("log", help="drive-log CSV (DESIGN.md schema)")
-    sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (its nominal parameters are used)")
+    sp.add_argument("--vehicle", help="bundled name or TOML path (its nominal parameters are used)")
+    sp.add_argument("--design", help="an 'evstab design' folder: run its estimator exactly as exported "
+                                     "(instead of --vehicle/--method)")
     sp.add_argument("--method", choices=METHODS, default="dakf")
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
     sp.add_argument("--out", required=True, help="estimate CSV to write")
     sp.set_defaults(func=cmd_estimate)
+    sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")
+    sp.add_argument("log", help="drive-log CSV (DESIGN.md schema; steer_driver, steer_limited_last and "
+                                "yaw_moment_limited_last are read when present)")
+    sp.add_argument("--design", required=True, help="an 'evstab design' folder")
+    sp.add_argument("--mu", type=_positive, help="friction the reference assumes (default: the vehicle's)")
+    sp.add_argument("--out", required=True, help="CSV of the ECU outputs to write")
+    sp.add_argument("--inputs-out", help="also write the ECU input rows (for the exported evstab_replay harness)")
+    sp.set_defaults(func=cmd_replay)
+    sp = sub.add_parser("export", help="export a design as firmware: C99, JSON gain set, A2L, CDFX")
+    sp.add_argument("design_dir", help="an 'evstab design' folder")
+    sp.add_argument("--format", choices=["c", "json", "a2l", "cdfx", "all"], default="all")
+    sp.add_argument("--precision", choices=["float32", "float64"], default="float64",
+                    help="floating-point type of the C code and the A2L record layouts")
+    sp.add_argument("--out", required=True, help="folder to write into")
+    sp.set_defaults(func=cmd_export)
     sp = sub.add_parser("fmvss126", help="FMVSS 126 sine-with-dwell series on the two-track plant")
     sp.add_argument("--vehicle", required=True)
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")

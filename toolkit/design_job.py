@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controllers.schedule import SpeedSchedule
 from controllers.two_dof import TwoDofDesign
 from plants import VehicleParams, load_vehicle
 from plants.disturbances import Disturbances, Friction
@@ -92,6 +93,7 @@ def design_document(cfg: sw.SweepConfig, tuned: sw.DesignPoint, paper: sw.Design
         "gps": {"rate_hz": cfg.sensors.gps_rate, "latency_s": cfg.sensors.gps_latency,
                 "hdop": cfg.sensors.gps_hdop, "satellites": cfg.sensors.gps_sats},
         "estimator": _estimator_dict(cfg.filter_design(tuned)),
+        "schedule": SpeedSchedule.build(p.as_nominal()).to_dict(),
         "controller": _controller_dict(tuned.controller(cfg.base_design())),
         "designs": {d.name: {k: float(getattr(d, k)) for k in sw.DesignPoint.TUNED} for d in (paper, tuned)},
         "tuning": tuning,

@@ -60,12 +60,19 @@ class DriveLog:
         return DriveLog({k: v for k, v in self.columns.items() if not k.endswith("_true")}, self.source)
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: str | Path, write, mode: str = "w") -> None:
     """Call ``write(fileobj)`` on a temporary file next to ``path``; rename it to ``path`` when done."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
     try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; the result gets an ordinary file's mode
         kw = {"newline": ""} if "b" not in mode else {}
         with os.fdopen(fd, mode, **kw) as fh:
             write(fh)

@@ -88,6 +88,9 @@ class SimResult:
         if "steer_driver" in self.commands:
             cols["steer_driver"] = self.commands["steer_driver"]
             cols["yaw_moment_cmd"] = self.commands["yaw_moment_cmd"]
+        for name in ("steer_limited_last", "yaw_moment_limited_last"):  # the controller's limit-flag inputs
+            if name in self.commands:
+                cols[name] = self.commands[name]
         return cols
 
     def write_csv(self, path) -> None:
@@ -231,7 +234,8 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
     log_names = None
     meas_log = {}
     extra = {name: np.zeros(n) for name in ("steer_driver", "yaw_moment_cmd", "beta_ref", "yaw_rate_ref",
-                                             "beta_est", "yaw_rate_est", "yaw_moment_limited")}
+                                             "beta_est", "yaw_rate_est", "yaw_moment_limited", "steer_limited_last",
+                                             "yaw_moment_limited_last", "steer_cmd")}
     ix, iy_, iyaw = (model.state_index(s) for s in ("x", "y", "yaw"))
     ivx = model.states.index("vx") if "vx" in model.states else None
     truth_idx = {name: i for i, name in enumerate(TRUTH)}
@@ -267,6 +271,8 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
             b, r, d1, d2 = y_prev[truth_idx["beta"]], y_prev[truth_idx["yaw_rate"]], 0.0, 0.0
         cs = {"speed": m["speed"], "steer_driver": steer_drv[k], "beta": b, "yaw_rate": r, "d1": d1, "d2": d2,
               "mu": mu, "dt": sig["dt"], **flags}
+        extra["steer_limited_last"][k], extra["yaw_moment_limited_last"][k] = flags["steer_limited"], \
+            flags["yaw_moment_limited"]
         ctl_state, u = ctl.step(ctl_state, t[k], cs)
         act_state, a = act.step(act_state, t[k], {"steer": u["steer"], "yaw_moment": u["yaw_moment"], "dt": sig["dt"]})
         flags = {"steer_limited": a["steer_limited"], "yaw_moment_limited": a["yaw_moment_limited"]}
@@ -274,7 +280,8 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
         applied = (a["steer"], a["yaw_moment"])
         for key, val in (("steer_driver", steer_drv[k]), ("yaw_moment_cmd", u["yaw_moment"]),
                          ("beta_ref", u["beta_ref"]), ("yaw_rate_ref", u["yaw_rate_ref"]), ("beta_est", b),
-                         ("yaw_rate_est", r), ("yaw_moment_limited", a["yaw_moment_limited"])):
+                         ("yaw_rate_est", r), ("yaw_moment_limited", a["yaw_moment_limited"]),
+                         ("steer_cmd", u["steer"])):
             extra[key][k] = val
         x, Y[:, k] = cp.step(x, cmd[:, k], W[:, k])
         y_prev = Y[:, k]

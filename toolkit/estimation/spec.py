@@ -112,6 +112,8 @@ class FilterDesign:
     latency: float = 0.0
     antenna_x: float = 0.0
     dt_nominal: float = 1e-3
+    schedule: object = None
+    """A :class:`controllers.schedule.SpeedSchedule`: the lateral model from tables (firmware), or None (exact)."""
 
     @property
     def n(self) -> int:
@@ -169,7 +171,10 @@ def continuous_model(d: FilterDesign, v, ops, dynamic=True):
         A[d.index("yaw"), ir] = 1.0
     if not dynamic:
         return A, B
-    a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
+    if d.schedule is not None:
+        a11, a12, a21, a22, b11, b21, b22 = d.schedule.values(v, ops)[:7]
+    else:
+        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
     A[ib, ib], A[ib, ir], A[ir, ib], A[ir, ir] = a11, a12, a21, a22
     B[ib, 0], B[ir, 0], B[ir, 1] = b11, b21, b22
     if d.disturbance is not None:

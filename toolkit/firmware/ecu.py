@@ -1,0 +1,284 @@
+"""The ECU step: one control period of estimator and controller, numpy or casadi.
+
+This is the part of the stability loop that runs on the vehicle, cut out of the
+simulator's loop with the same component equations: the Kalman-filter step of
+:mod:`toolkit.estimation.kalman`, the control law of :mod:`controllers.two_dof`
+(both with the speed schedule of :mod:`controllers.schedule`, the firmware's model),
+and the split of the yaw-moment command over the rear motors. Its inputs are what
+an ECU receives each period (:data:`INPUTS`, SI units, ISO 8855 signs), its state
+the filter's and the controller's, its outputs :data:`OUTPUTS`.
+
+Step semantics (the simulator's, see :func:`toolkit.simulator.simulate`): each
+period the filter takes the measurements and the yaw moment applied over the last
+period, then the controller takes the new estimates, the driver's steer and the
+actuators' limit flags of the last period. Before the step the schedule is read at
+``max(speed, filter min_speed)`` for the filter and ``max(speed, controller
+min_speed)`` for the controller (:meth:`EcuDesign.schedule_inputs`); the generated
+C does the same with its own table lookup.
+
+Calibration scalars (:meth:`EcuDesign.calibration`) are inputs of the traced step,
+so the C reads them from named ``static const`` data that the A2L describes.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers import two_dof as ctl_mod
+from controllers.schedule import ROWS, SpeedSchedule
+from controllers.two_dof import TwoDofDesign, control_law
+from plants.backend import CASADI, NUMPY
+from plants.errors import ModelError
+
+from ..estimation import kalman
+from ..estimation.spec import FilterDesign
+
+INPUTS = (
+    # name, unit, C type, meaning
+    ("dt", "s", "real", "time since the previous step (the control period)"),
+    ("speed", "m/s", "real", "vehicle speed from the non-driven wheels"),
+    ("steer", "rad", "real", "measured front road-wheel angle, + left"),
+    ("yaw_rate", "rad/s", "real", "gyro yaw rate, + counter-clockwise seen from above"),
+    ("ay", "m/s^2", "real", "lateral acceleration, + left"),
+    ("gps_valid", "-", "int", "1 when a new GPS course fix arrived in this period, else 0"),
+    ("gps_course", "rad", "real", "GPS course over ground, same sense and reference as yaw, continuous"),
+    ("gps_speed", "m/s", "real", "GPS ground speed (not used by this design; kept for logging)"),
+    ("gps_hdop", "-", "real", "horizontal dilution of precision of the fix"),
+    ("gps_sats", "-", "int", "satellites used in the fix (fewer than 4: the fix is not used)"),
+    ("steer_cmd_driver", "rad", "real", "driver's road-wheel angle command (hand-wheel angle / steering ratio)"),
+    ("yaw_moment_applied", "N m", "real", "yaw moment the rear motors made over the last period, + turns left"),
+    ("steer_limited", "-", "int", "1 when the steer actuator was at a limit in the last period"),
+    ("yaw_moment_limited", "-", "int", "1 when the motors were at a torque limit in the last period"),
+    ("mu", "-", "real", "tire-road friction the reference model assumes"),
+)
+OUTPUTS = (
+    ("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
+    ("yaw_rate", "rad/s", "estimated yaw rate"),
+    ("yaw", "rad", "estimated yaw angle, continuous"),
+    ("d1", "rad/s", "disturbance on the sideslip equation (0 without disturbance states)"),
+    ("d2", "rad/s^2", "disturbance on the yaw-rate equation (0 without disturbance states)"),
+    ("gyro_bias", "rad/s", "estimated gyro bias (0 without a bias state)"),
+    ("beta_std", "rad", "standard deviation of the sideslip estimate"),
+    ("gps_used", "-", "1 when this period's fix was used"),
+    ("steer_cmd", "rad", "front road-wheel angle command, + left"),
+    ("yaw_moment_cmd", "N m", "direct yaw moment command, + turns left"),
+    ("torque_rl", "N m", "rear-left wheel torque command (the yaw part, added to the driver's)"),
+    ("torque_rr", "N m", "rear-right wheel torque command (the yaw part, added to the driver's)"),
+    ("beta_ref", "rad", "sideslip reference"),
+    ("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+)
+INPUT_NAMES = tuple(r[0] for r in INPUTS)
+OUTPUT_NAMES = tuple(r[0] for r in OUTPUTS)
+FIRMWARE_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """One calibratable scalar: value, unit, limits and where it lives in the design."""
+
+    name: str
+    value: float
+    unit: str
+    lower: float
+    upper: float
+    description: str
+    owner: str
+    """``controller``, ``noise`` (the filter's :class:`NoiseSettings`) or ``ecu``."""
+
+
+_CONTROLLER_CAL = (
+    ("k_beta", "rad/s", 0.01, 100.0, "model-following pole for sideslip (seed 003 K_beta)"),
+    ("k_gamma", "rad/s", 0.01, 100.0, "model-following pole for yaw rate (seed 003 K_gamma)"),
+    ("friction_margin", "-", 0.05, 1.5, "yaw-rate reference limit as a share of mu g / v"),
+    ("yaw_priority", "-", 0.001, 1000.0, "weight of the yaw-rate row against sideslip when a command saturates"),
+    ("steer_max", "rad", 0.0, 1.0, "road-wheel angle command limit"),
+    ("yaw_moment_max", "N m", 0.0, 1e5, "largest yaw moment command"),
+)
+_NOISE_CAL = {
+    "q_beta": ("rad^2/s", "process-noise intensity on beta'"),
+    "q_yaw_rate": ("rad^2/s^3", "process-noise intensity on the yaw rate's derivative"),
+    "q_yaw": ("rad^2/s", "process-noise intensity on the yaw angle's derivative"),
+    "q_d1": ("rad^2/s^3", "process-noise intensity driving d1"),
+    "q_d2": ("rad^2/s^5", "process-noise intensity driving d2"),
+    "q_bias": ("rad^2/s^3", "process-noise intensity of the gyro-bias random walk"),
+}
+
+
+@dataclass(frozen=True)
+class EcuDesign:
+    """What runs on the ECU: a filter and a controller sharing one speed schedule, and the torque split."""
+
+    filter: FilterDesign
+    controller: TwoDofDesign
+    torque_max: float
+    """Per-motor torque limit [N m] of the yaw-moment split."""
+    track_rear: float
+    """Rear track [m]."""
+    wheel_radius: float
+    """Wheel radius [m]."""
+
+    def __post_init__(self):
+        if self.filter.method not in FIRMWARE_METHODS:
+            raise ModelError(f"firmware export supports the Kalman-filter methods ({', '.join(FIRMWARE_METHODS)}), "
+                             f"not '{self.filter.method}'")
+        if not isinstance(self.controller.schedule, SpeedSchedule) or self.filter.schedule != self.controller.schedule:
+            raise ModelError("the ECU's filter and controller must carry the same speed schedule")
+        if not np.isfinite(self.controller.nz_max):
+            raise ModelError("the controller's yaw_moment_max is not finite: give the vehicle max_motor_torque, "
+                             "track_rear and wheel_radius (or set yaw_moment_max)")
+
+    @classmethod
+    def from_designs(cls, filt: FilterDesign, ctl: TwoDofDesign, schedule: SpeedSchedule | None = None) -> "EcuDesign":
+        """Attach ``schedule`` (default: built from the controller's nominal parameters) to both designs."""
+        p = ctl.params
+        for name in ("track_rear", "wheel_radius", "max_motor_torque"):
+            p.require(name, model="firmware export")
+        sched = schedule or SpeedSchedule.build(p)
+        ctl = copy.copy(ctl)
+        object.__setattr__(ctl, "schedule", sched)
+        object.__setattr__(ctl, "yaw_moment_max", float(ctl.nz_max))
+        filt = copy.copy(filt)
+        object.__setattr__(filt, "schedule", sched)
+        return cls(filt, ctl, float(p.max_motor_torque), float(p.track_rear), float(p.wheel_radius))
+
+    @property
+    def schedule(self) -> SpeedSchedule:
+        return self.controller.schedule
+
+    @property
+    def layout(self) -> dict:
+        """Offsets of the flat ECU state: the filter's parts (see :func:`kalman.layout`), then the controller's."""
+        lay = dict(kalman.layout(self.filter))
+        lay["controller"] = lay["size"]
+        lay["size"] = lay["size"] + len(ctl_mod.STATE)
+        return lay
+
+    @property
+    def n_state(self) -> int:
+        return self.layout["size"]
+
+    def initial_state(self) -> np.ndarray:
+        """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
+        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), np.zeros(len(ctl_mod.STATE))])
+
+    @property
+    def min_speeds(self) -> tuple[float, float]:
+        """Speeds [m/s] below which the filter and the controller read the schedule at that speed."""
+        return float(self.filter.noise.min_speed), float(self.controller.min_speed)
+
+    def schedule_inputs(self, speed) -> np.ndarray:
+        """The schedule's rows for the filter and the controller at ``speed`` (scalar or array): (..., 2 * 9)."""
+        v = np.asarray(speed, float)
+        e, c = self.min_speeds
+        se = self.schedule.values(np.fmax(v, e))
+        sc = self.schedule.values(np.fmax(v, c))
+        return np.stack(list(se) + list(sc), axis=-1)
+
+    def calibration(self) -> tuple[Calibration, ...]:
+        """The calibratable scalars of this design (the tables are :attr:`schedule`)."""
+        c, nz, f = self.controller, self.filter.noise, self.filter
+        out = [Calibration(k, float(getattr(c, k)), u, lo, hi, desc, "controller") for k, u, lo, hi, desc in
+               _CONTROLLER_CAL]
+        out.append(Calibration("torque_max", self.torque_max, "N m", 0.0, 1e4,
+                               "per-motor torque limit of the yaw-moment split", "ecu"))
+        for s in f.states:
+            key = "q_" + s if s != "gyro_bias" else "q_bias"
+            unit, desc = _NOISE_CAL[key]
+            out.append(Calibration(key, float(getattr(nz, key)), unit, 0.0, 1e6, desc, "noise"))
+        out.append(Calibration("gyro_std", nz.gyro_std, "rad/s", 1e-6, 1.0, "gyro noise standard deviation per sample",
+                               "noise"))
+        if f.hdop_noise:
+            out.append(Calibration("gps_velocity_std", nz.gps_velocity_std, "m/s", 1e-4, 10.0,
+                                   "GPS velocity noise per axis at HDOP 1 (course noise = this * HDOP / speed)",
+                                   "noise"))
+            out.append(Calibration("course_std_min", nz.course_std_min, "rad", 1e-6, 1.0,
+                                   "smallest course standard deviation", "noise"))
+        else:
+            out.append(Calibration("course_std", nz.course_std, "rad", 1e-6, 1.0, "course standard deviation",
+                                   "noise"))
+        if f.gating:
+            out.append(Calibration("gate", nz.gate, "-", 1.0, 1e4,
+                                   "chi-square gate on the course innovation (normalised squared innovation)",
+                                   "noise"))
+        return tuple(out)
+
+    def bind(self, values) -> "EcuDesign":
+        """A copy whose calibration scalars are ``values`` (numbers or casadi symbols, in
+        :meth:`calibration` order). Validation is skipped: symbols cannot be checked."""
+        cal = self.calibration()
+        if len(values) != len(cal):
+            raise ModelError(f"expected {len(cal)} calibration values, got {len(values)}")
+        by = {"controller": {}, "noise": {}, "ecu": {}}
+        for c, v in zip(cal, values):
+            by[c.owner][c.name] = v
+        noise = _with(self.filter.noise, **by["noise"])
+        return _with(self, filter=_with(self.filter, noise=noise), controller=_with(self.controller, **by["controller"]),
+                     **by["ecu"])
+
+
+class _Rows:
+    """A schedule already read at this step's speed: the rows come in as values (or symbols)."""
+
+    def __init__(self, rows):
+        self.rows = tuple(rows)
+
+    def values(self, v, o=NUMPY):
+        return self.rows
+
+
+def _with(obj, **values):
+    """A copy of a frozen dataclass with fields replaced without validation (casadi symbols)."""
+    c = copy.copy(obj)
+    for k, v in values.items():
+        object.__setattr__(c, k, v)
+    return c
+
+
+def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
+    """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
+
+    ``sched``: the 18 values of :meth:`EcuDesign.schedule_inputs` for this step (numbers
+    or symbols); None reads the schedule here. ``with_course=False`` leaves out the course
+    update (exact on a step without a fix, see :func:`kalman.step`).
+    """
+    nr = len(ROWS)
+    if sched is not None:
+        d = _with(d, filter=_with(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
+                  controller=_with(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
+    lay = d.layout
+    ne = lay["controller"]
+    z_est, z_ctl = z[0:ne], z[ne:lay["size"]]
+    g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
+    valid = g["gps_valid"]
+    u_est = o.stack([g["dt"], g["speed"], g["steer"], g["yaw_moment_applied"], g["yaw_rate"], valid,
+                     valid * g["gps_course"], g["gps_hdop"], g["gps_sats"], g["ay"]])
+    z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course)
+    est = dict(zip(kalman.OUTPUTS, (y[i] for i in range(len(kalman.OUTPUTS)))))
+    zero = 0.0 * g["speed"]
+    d1 = est["d1"] if "d1" in d.filter.states else zero
+    d2 = est["d2"] if "d2" in d.filter.states else zero
+    bias = est["gyro_bias"] if d.filter.bias else zero
+    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], d1, d2, g["mu"],
+                   g["steer_limited"], g["yaw_moment_limited"]])
+    z_ctl_n, c = control_law(d.controller, z_ctl, sig, o)
+    diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
+    out = o.stack([est["beta"], est["yaw_rate"], est["yaw"], d1, d2, bias, est["beta_std"], est["gps_used"],
+                   c[0], c[1], -diff, diff, c[2], c[3]])
+    return o.concat([z_est_n, z_ctl_n]), out
+
+
+def traced_steps(d: EcuDesign):
+    """casadi SX functions ``(z, u, sched, cal) -> (z_next, y)`` without and with the course update."""
+    import casadi as ca
+    out = []
+    for with_course in (False, True):
+        z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", len(INPUTS))
+        s, cal = ca.SX.sym("sched", 2 * len(ROWS)), ca.SX.sym("cal", len(d.calibration()))
+        bound = d.bind([cal[i] for i in range(cal.shape[0])])
+        zn, y = ecu_step(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course)
+        name = "ecu_fix" if with_course else "ecu_nofix"
+        out.append(ca.Function(name, [z, u, s, cal], [zn, y], ["z", "u", "sched", "cal"], ["z_next", "y"]))
+    return tuple(out)

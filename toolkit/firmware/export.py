@@ -1,0 +1,87 @@
+"""``evstab export``: a design folder to firmware files (C99, JSON, A2L, CDFX).
+
+Every file is generated in memory first; only when all of them are ready is each
+written to a temporary name and renamed, so a failure leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from plants.errors import EvstabError
+
+from ..design_job import evstab_version, git_revision, load_design
+from ..logio import atomic_write
+from . import asam, csource, gains
+from .cgen import PRECISIONS, Precision
+from .ecu import EcuDesign
+
+FORMATS = ("c", "json", "a2l", "cdfx")
+FILES = {"c": ("evstab_firmware.h", "evstab_firmware.c", "evstab_replay.c"), "json": ("evstab_gains.json",),
+         "a2l": ("evstab_firmware.a2l",), "cdfx": ("evstab_firmware.cdfx",)}
+
+
+class ExportError(EvstabError, ValueError):
+    """A design folder cannot be exported (what is wrong is named)."""
+
+
+def ecu_from_design(path) -> tuple[EcuDesign, dict]:
+    """The ECU design of an ``evstab design`` folder (or a ``design.json``) and its document."""
+    from controllers.schedule import SpeedSchedule
+    try:
+        loaded = load_design(path)
+    except ValueError as e:
+        raise ExportError(str(e)) from None
+    doc = loaded.document
+    try:
+        sched = SpeedSchedule.from_dict(doc["schedule"]) if "schedule" in doc else None
+        d = EcuDesign.from_designs(loaded.filter, loaded.controller, sched)
+    except (ValueError, EvstabError) as e:
+        raise ExportError(f"{path}: {e}") from None
+    return d, doc
+
+
+def gain_set(design_dir, command: str | None = None) -> dict:
+    """The gain-set document of a design folder."""
+    d, doc = ecu_from_design(design_dir)
+    prov = {"evstab_version": evstab_version(), "git_revision": git_revision(), "export_command": command,
+            "design": doc.get("provenance", {}), "design_format": doc.get("format")}
+    return gains.gains_document(d, prov, dict(doc.get("gps", {})))
+
+
+def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
+    """File name -> content for the requested formats (nothing written)."""
+    if precision not in PRECISIONS:
+        raise ExportError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise ExportError(f"unknown export format {unknown[0]!r}; known: {', '.join(FORMATS)}, all")
+    d, _, _ = gains.load_gains(doc)
+    p = Precision(precision)
+    info = {"evstab_version": doc["evstab_version"], "params_digest": doc["vehicle"]["params_digest"],
+            "vehicle": doc["vehicle"]["name"]}
+    out: dict[str, bytes] = {}
+    if "c" in formats:
+        out["evstab_firmware.h"] = csource.header(d, p, info).encode()
+        out["evstab_firmware.c"] = csource.source(d, p, info).encode()
+        out["evstab_replay.c"] = csource.harness().encode()
+    if "json" in formats:
+        out["evstab_gains.json"] = gains.dumps(doc).encode()
+    if "a2l" in formats:
+        out["evstab_firmware.a2l"] = asam.a2l(doc, precision).encode()
+    if "cdfx" in formats:
+        out["evstab_firmware.cdfx"] = asam.cdfx(doc)
+    return out
+
+
+def export_design(design_dir, out_dir, formats=FORMATS, precision: str = "float64",
+                  command: str | None = None) -> list[Path]:
+    """Write the requested formats of ``design_dir`` into ``out_dir``; returns the paths written."""
+    files = render(gain_set(design_dir, command), formats, precision)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, content in files.items():
+        atomic_write(out / name, lambda fh, c=content: fh.write(c), mode="wb")
+        written.append(out / name)
+    return written

@@ -1,0 +1,175 @@
+"""The self-describing JSON gain set (``evstab_gains.json``) and its loader.
+
+Format ``evstab-gains/1``: everything the firmware's step needs and everything a
+reader needs to use it without evstab: control period, GPS model, the signal order
+with units and ISO 8855 signs, the state layout and initial value, the estimator's
+and controller's settings, every calibration scalar (value, unit, limits, C symbol),
+the speed-scheduling grid with its interpolation rule, the torque split, the
+parameter-set hash, the evstab version and the design's provenance.
+
+:func:`load_gains` rebuilds the :class:`~toolkit.firmware.ecu.EcuDesign`;
+``gains_document(*load_gains(doc))`` is ``doc`` again, number for number (floats are
+written with Python's shortest round-trip repr).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+from controllers.schedule import ROWS, RULE, UNITS, SpeedSchedule
+from controllers.two_dof import TwoDofDesign
+from plants.errors import EvstabError
+from plants.params import VehicleParams
+
+from ..estimation.spec import FilterDesign, NoiseSettings, design_filter
+from .ecu import INPUTS, OUTPUTS, EcuDesign
+
+FORMAT = "evstab-gains/1"
+_CTL_SKIP = ("params", "schedule", "method")
+
+
+class GainSetError(EvstabError, ValueError):
+    """A gain-set file is unreadable or a field is missing or wrong."""
+
+
+def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
+    """The JSON document of ``d``. ``provenance``: the design's (version, revision, command, ...);
+    ``gps``: the GPS set-up it was designed for (``rate_hz``, ``latency_s``, ...)."""
+    from .csource import symbol_names
+    f, c, p = d.filter, d.controller, d.controller.params
+    names = symbol_names(d)
+    fmin, cmin = d.min_speeds
+    lay = d.layout
+    return {
+        "format": FORMAT,
+        "description": "evstab stability-control ECU step: multi-rate Kalman filter (gyro every period, GPS course "
+                       "when a fix arrives) and 2-DOF model-following controller (front steer + rear in-wheel-motor "
+                       "yaw moment), speed-scheduled by table interpolation.",
+        "conventions": "SI units, angles in rad; ISO 8855 axes (x forward, y left, z up); yaw, yaw rate, sideslip, "
+                       "steer and course positive counter-clockwise seen from above; steer is the front road-wheel "
+                       "angle; course = yaw + sideslip at the antenna, continuous (unwrapped)",
+        "evstab_version": provenance.get("evstab_version", "unknown"),
+        "vehicle": {"name": p.name, "params_digest": p.digest(), "nominal_params": p.to_dict()},
+        "control_period_s": f.dt_nominal,
+        "gps": dict(gps, model="single-antenna course over ground; a fix is flagged by gps_valid on the period it "
+                               "arrives; fixes with fewer than 4 satellites or below the filter's GPS speed are not "
+                               "used; course noise from HDOP and speed when hdop_noise",
+                    latency_compensated_s=f.latency, latency_samples=f.latency_samples),
+        "signals": {
+            "inputs": [{"index": i, "name": n, "unit": u, "c_type": "int" if k in ("int", "flag") else "evstab_real",
+                        "description": desc} for i, (n, u, k, desc) in enumerate(INPUTS)],
+            "outputs": [{"index": i, "name": n, "unit": u, "description": desc}
+                        for i, (n, u, desc) in enumerate(OUTPUTS)],
+        },
+        "step": "each period: the filter takes the measurements and the yaw moment applied over the last period; "
+                "the controller takes the new estimates, the driver's steer and the actuators' limit flags of the "
+                "last period; the yaw-moment command is split over the rear motors as +-N_z R_w / t_r, limited to "
+                "torque_max",
+        "state": {"size": d.n_state, "layout": {k: v for k, v in lay.items()},
+                  "initial": [float(v) for v in d.initial_state()]},
+        "estimator": {
+            "method": f.method, "states": list(f.states), "disturbance": f.disturbance, "bias": f.bias,
+            "gating": f.gating, "hdop_noise": f.hdop_noise, "standstill_update": f.standstill_update,
+            "residual_prediction": f.residual_prediction, "latency_s": f.latency, "antenna_x_m": f.antenna_x,
+            "noise": {k.name: float(getattr(f.noise, k.name)) for k in dataclasses.fields(f.noise)},
+        },
+        "controller": {k.name: _num(getattr(c, k.name)) for k in dataclasses.fields(c) if k.name not in _CTL_SKIP},
+        "calibration": [{"name": cal.name, "symbol": names[cal.name], "value": cal.value, "unit": cal.unit,
+                         "lower": cal.lower, "upper": cal.upper, "owner": cal.owner, "description": cal.description}
+                        for cal in d.calibration()],
+        "schedule": {
+            "axis": {"name": "inv_speed", "symbol": names["inv_speed"], "unit": "s/m",
+                     "values": list(d.schedule.inv_speed)},
+            "speeds_m_per_s": [float(v) for v in d.schedule.speeds],
+            "rows": [{"name": r, "symbol": names[r], "unit": UNITS[i], "values": list(d.schedule.table[i])}
+                     for i, r in enumerate(ROWS)],
+            "interpolation": RULE,
+            "evaluated_at": {"filter": f"max(speed, {fmin!r})", "controller": f"max(speed, {cmin!r})"},
+            "max_relative_interpolation_error": d.schedule.max_error(p),
+        },
+        "torque_split": {"torque_max_nm": d.torque_max, "track_rear_m": d.track_rear,
+                         "wheel_radius_m": d.wheel_radius},
+        "provenance": provenance,
+    }
+
+
+def _num(v):
+    """JSON has no infinity: an unlimited bound (``beta_error_max``) is written as null."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v) if math.isfinite(v) else None
+    return v
+
+
+def write_gains(path, doc: dict) -> None:
+    from ..logio import atomic_write
+    atomic_write(path, lambda fh: fh.write(dumps(doc)))
+
+
+def dumps(doc: dict) -> str:
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
+def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
+    """``(design, provenance, gps)`` from a gain-set file (or its parsed document).
+
+    Errors name the file and the field.
+    """
+    where = "gain set"
+    if isinstance(path_or_doc, dict):
+        doc = path_or_doc
+    else:
+        where = str(path_or_doc)
+        try:
+            doc = json.loads(Path(path_or_doc).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise GainSetError(f"{where}: cannot read a gain set ({e})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise GainSetError(f"{where}: field 'format' is {got!r}, expected {FORMAT!r}")
+    field = "vehicle.nominal_params"
+    try:
+        params = VehicleParams(**doc["vehicle"]["nominal_params"])
+        field = "estimator"
+        e = doc["estimator"]
+        fd = design_filter(e["method"], params, NoiseSettings(**e["noise"]), latency=e["latency_s"],
+                           antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False)
+        field = "schedule"
+        s = doc["schedule"]
+        sched = SpeedSchedule(tuple(float(v) for v in s["axis"]["values"]),
+                              tuple(tuple(float(v) for v in r["values"]) for r in s["rows"]))
+        if [r["name"] for r in s["rows"]] != list(ROWS):
+            raise ValueError(f"rows must be {', '.join(ROWS)} in that order")
+        field = "controller"
+        ctl = TwoDofDesign(params, schedule=sched, **{k: (math.inf if v is None else v)
+                                                      for k, v in doc["controller"].items()})
+        field = "torque_split"
+        ts = doc["torque_split"]
+        d = EcuDesign(dataclasses.replace(fd, schedule=sched), ctl, float(ts["torque_max_nm"]),
+                      float(ts["track_rear_m"]), float(ts["wheel_radius_m"]))
+        field = "calibration"
+        cal = {c["name"]: c["value"] for c in doc["calibration"]}
+        d = _apply_calibration(d, cal)
+        field = "state"
+        if doc["state"]["size"] != d.n_state:
+            raise ValueError(f"size {doc['state']['size']} does not match the design's {d.n_state}")
+    except KeyError as e:
+        raise GainSetError(f"{where}: field '{field}': missing {e}") from None
+    except (TypeError, ValueError, AttributeError) as e:
+        raise GainSetError(f"{where}: field '{field}': {e}") from None
+    return d, doc["provenance"], {k: v for k, v in doc["gps"].items()
+                                  if k not in ("model", "latency_compensated_s", "latency_samples")}
+
+
+def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
+    """The calibration list is authoritative: a calibrator may have edited it."""
+    cal = d.calibration()
+    missing = [c.name for c in cal if c.name not in values]
+    if missing:
+        raise ValueError(f"no value for {', '.join(missing)}")
+    ctl = dataclasses.replace(d.controller, **{c.name: float(values[c.name]) for c in cal if c.owner == "controller"})
+    noise = dataclasses.replace(d.filter.noise, **{c.name: float(values[c.name]) for c in cal if c.owner == "noise"})
+    filt: FilterDesign = dataclasses.replace(d.filter, noise=noise)
+    return dataclasses.replace(d, filter=filt, controller=ctl, torque_max=float(values["torque_max"]))

@@ -1,0 +1,162 @@
+"""Replay a drive log through the ECU step (estimator and controller, open loop).
+
+``evstab replay`` and ``evstab estimate --design`` run here. The step is the
+casadi trace of :func:`toolkit.firmware.ecu.ecu_step` (the graph the exported C is
+written from), rolled out by ``mapaccum`` and compiled by casadi's own code
+generator (cached), or run in casadi's virtual machine without a compiler; a
+Python loop over the numpy step is the reference (``backend="numpy"``). Like the
+filter runner, each sample takes the branch without the course update when it
+carries no fix.
+
+Log columns read (DESIGN.md schema): ``t``, ``speed``, ``steer``, ``yaw_rate``,
+``gps_course`` (required), ``ay``, ``yaw_moment``, ``gps_speed``, ``gps_hdop``,
+``gps_sats`` (optional), and the ECU's own inputs when the log has them:
+``steer_driver`` (driver's road-wheel angle command; default ``steer``),
+``steer_limited_last`` and ``yaw_moment_limited_last`` (actuator limit flags of
+the previous period; default 0). ``*_true`` columns are never read.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+import controllers.schedule
+import controllers.two_dof
+from plants.backend import NUMPY
+
+from ..compiled import CFunction, cached_library, compile_library, compiler, source_digest
+from ..estimation import kalman
+from . import ecu as ecu_mod
+from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
+
+CHUNK = 2000
+LOG_COLUMNS = ("ay", "yaw_moment", "gps_speed", "gps_hdop", "gps_sats", "steer_driver", "steer_limited_last",
+               "yaw_moment_limited_last")
+"""Optional drive-log columns the replay reads (besides the schema's required ones)."""
+
+
+def ecu_inputs(log, mu: float, dt0: float = 1e-3) -> np.ndarray:
+    """The (N, len(INPUTS)) ECU input matrix of a drive log (a :class:`DriveLog` or a mapping of columns).
+
+    ``dt`` of the first row is the second row's spacing (``dt0`` for a one-row log);
+    no fix where ``gps_course`` is NaN; HDOP 1 and 99 satellites where unknown.
+    """
+    cols = log.columns if hasattr(log, "columns") else log
+    get = lambda k: np.asarray(cols[k], float) if k in cols else None  # noqa: E731
+    t = get("t")
+    n = len(t)
+    U = np.zeros((n, len(INPUT_NAMES)))
+    col = {name: U[:, i] for i, name in enumerate(INPUT_NAMES)}
+    col["dt"][0] = dt0 if n < 2 else t[1] - t[0]
+    col["dt"][1:] = np.diff(t)
+    course = get("gps_course")
+    fix = np.isfinite(course)
+    col["speed"][:], col["steer"][:], col["yaw_rate"][:] = get("speed"), get("steer"), get("yaw_rate")
+    col["gps_valid"][:] = fix
+    col["gps_course"][:] = np.where(fix, course, 0.0)
+
+    def opt(name, default, missing=None):
+        v = get(name)
+        return np.full(n, default) if v is None else np.where(np.isfinite(v), v, default if missing is None else missing)
+
+    col["ay"][:] = opt("ay", 0.0)
+    col["gps_speed"][:] = opt("gps_speed", 0.0)
+    col["gps_hdop"][:] = opt("gps_hdop", 1.0)
+    col["gps_sats"][:] = opt("gps_sats", 99.0)
+    col["yaw_moment_applied"][:] = opt("yaw_moment", 0.0)
+    drv = get("steer_driver")
+    col["steer_cmd_driver"][:] = col["steer"] if drv is None else drv
+    col["steer_limited"][:] = opt("steer_limited_last", 0.0)
+    col["yaw_moment_limited"][:] = opt("yaw_moment_limited_last", 0.0)
+    col["mu"][:] = mu
+    return U
+
+
+class EcuProgram:
+    """An ECU design ready to replay logs; ``backend`` is ``c``, ``vm`` or ``numpy``."""
+
+    def __init__(self, d: EcuDesign, backend: str = "auto"):
+        self.design = d
+        self.cal = np.array([c.value for c in d.calibration()])
+        self.backend = "numpy" if backend == "numpy" else "vm"
+        self._chunk = None
+        if backend in ("auto", "c"):
+            src = source_digest(ecu_mod, kalman, controllers.two_dof, controllers.schedule)
+            key = "ecu_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
+            lib = cached_library(key)
+            if lib is None and compiler() is not None:
+                lib = compile_library([self.chunk_fn], key)
+            if lib is not None:
+                self._c = CFunction(ctypes.CDLL(str(lib)), "ecu_chunk")
+                self.backend = "c"
+            elif backend == "c":
+                raise RuntimeError("no C compiler available for backend 'c'")
+
+    @property
+    def chunk_fn(self) -> ca.Function:
+        """``(z0, U, S, cal) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use)."""
+        if self._chunk is None:
+            nofix, fix = traced_steps(self.design)
+            switch = ca.Function.conditional("ecu_switch", [nofix], fix)
+            nz, nu, ns, nc = (nofix.size1_in(i) for i in range(4))
+            z, u, s, c = ca.MX.sym("z", nz), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
+            zn, y = switch(ca.if_else(u[INPUT_NAMES.index("gps_valid")] > 0.5, 1, 0), z, u, s, c)
+            step = ca.Function("ecu_step", [z, u, s, c], [zn, y])
+            acc = step.mapaccum("ecu_acc", CHUNK)
+            z0, U, S, C = ca.MX.sym("z0", nz), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK), ca.MX.sym("c", nc)
+            Z, Y = acc(z0, U, S, ca.repmat(C, 1, CHUNK))
+            self._chunk = ca.Function("ecu_chunk", [z0, U, S, C], [Z[:, -1], Y])
+        return self._chunk
+
+    def run(self, U: np.ndarray, z0: np.ndarray | None = None) -> np.ndarray:
+        """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS)) from ``z0`` (default: the initial state)."""
+        d = self.design
+        n, ny = U.shape[0], len(OUTPUT_NAMES)
+        z = d.initial_state() if z0 is None else np.array(z0, float)
+        S = d.schedule_inputs(U[:, INPUT_NAMES.index("speed")])
+        if self.backend == "numpy":
+            Y = np.empty((n, ny))
+            ifix = INPUT_NAMES.index("gps_valid")
+            for k in range(n):
+                z, Y[k] = ecu_step(d, z, U[k], S[k], NUMPY, with_course=bool(U[k, ifix] > 0.5))
+            return Y
+        n_pad = -(-n // CHUNK) * CHUNK
+        Up, Sp = np.empty((n_pad, U.shape[1])), np.empty((n_pad, S.shape[1]))
+        Up[:n], Sp[:n] = U, S
+        if n_pad > n:
+            Up[n:], Sp[n:] = U[-1], S[-1]
+            Up[n:, INPUT_NAMES.index("gps_valid")] = 0.0  # padded samples carry no fix
+        Y = np.empty((n_pad, ny))
+        if self.backend == "c":
+            zn = np.empty_like(z)
+            for s in range(0, n_pad, CHUNK):
+                self._c([z, Up.ctypes.data + s * Up.strides[0], Sp.ctypes.data + s * Sp.strides[0], self.cal],
+                        [zn, Y.ctypes.data + s * Y.strides[0]])
+                z, zn = zn, z
+        else:
+            for s in range(0, n_pad, CHUNK):
+                zs, ys = self.chunk_fn(z, Up[s:s + CHUNK].T, Sp[s:s + CHUNK].T, self.cal)
+                z = np.array(zs).ravel()
+                Y[s:s + CHUNK] = np.array(ys).T
+        return Y[:n]
+
+
+@lru_cache(maxsize=16)
+def ecu_program(d: EcuDesign, backend: str = "auto") -> EcuProgram:
+    return EcuProgram(d, backend)
+
+
+def replay(d: EcuDesign, log, mu: float | None = None, backend: str = "auto") -> dict:
+    """Run the ECU over a drive log; returns ``t`` and the :data:`OUTPUTS` columns."""
+    mu = d.controller.params.mu if mu is None else mu
+    U = ecu_inputs(log, mu, d.filter.dt_nominal)
+    Y = ecu_program(d, backend).run(U)
+    cols = log.columns if hasattr(log, "columns") else log
+    out = {"t": np.asarray(cols["t"], float)}
+    out.update({name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)})
+    return out
