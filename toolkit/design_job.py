@@ -68,7 +68,7 @@ def git_revision() -> str:
 
 # ------------------------------------------------------------------ design.json
 def _controller_dict(d: TwoDofDesign) -> dict:
-    out = {f.name: getattr(d, f.name) for f in dataclasses.fields(d) if f.name != "params"}
+    out = {f.name: getattr(d, f.name) for f in dataclasses.fields(d) if f.name not in ("params", "schedule")}
     out["yaw_moment_max"] = d.nz_max
     return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in out.items()}
 
@@ -81,23 +81,34 @@ def _estimator_dict(f: FilterDesign) -> dict:
 
 def design_document(cfg: sw.SweepConfig, tuned: sw.DesignPoint, paper: sw.DesignPoint, summary: dict,
                     tuning: dict, command: str) -> dict:
-    p = cfg.nominal
+    gps = {"rate_hz": cfg.sensors.gps_rate, "latency_s": cfg.sensors.gps_latency, "hdop": cfg.sensors.gps_hdop,
+           "satellites": cfg.sensors.gps_sats}
+    doc = basic_design_document(cfg.nominal, cfg.filter_design(tuned), tuned.controller(cfg.base_design()), gps,
+                                command)
+    doc["plant_model"] = cfg.plant
+    doc["designs"] = {d.name: {k: float(getattr(d, k)) for k in sw.DesignPoint.TUNED} for d in (paper, tuned)}
+    doc["tuning"] = tuning
+    doc["sweep"] = summary
+    doc["provenance"] = doc.pop("provenance")  # last, as before
+    return doc
+
+
+def basic_design_document(params: VehicleParams, filt: FilterDesign, ctl: TwoDofDesign, gps: dict,
+                          command: str | None) -> dict:
+    """What :func:`load_design` needs (vehicle, estimator, controller, schedule, GPS set-up), for a design
+    made outside ``evstab design`` (e.g. gains chosen by hand) that is to be exported."""
     return {
         "format": FORMAT,
         "description": "evstab stability-control design: DAKF estimator (gyro 1 kHz + GPS course) and 2-DOF "
                        "model-following controller (front steer + rear in-wheel-motor yaw moment).",
         "units": "SI; angles in rad, rates in rad/s, yaw moment in N m; ISO 8855 signs (x forward, y left, z up)",
-        "vehicle": {"name": p.name, "params_digest": p.digest(), "nominal_params": p.as_nominal().to_dict()},
-        "plant_model": cfg.plant,
-        "control_period_s": cfg.dt,
-        "gps": {"rate_hz": cfg.sensors.gps_rate, "latency_s": cfg.sensors.gps_latency,
-                "hdop": cfg.sensors.gps_hdop, "satellites": cfg.sensors.gps_sats},
-        "estimator": _estimator_dict(cfg.filter_design(tuned)),
-        "schedule": SpeedSchedule.build(p.as_nominal()).to_dict(),
-        "controller": _controller_dict(tuned.controller(cfg.base_design())),
-        "designs": {d.name: {k: float(getattr(d, k)) for k in sw.DesignPoint.TUNED} for d in (paper, tuned)},
-        "tuning": tuning,
-        "sweep": summary,
+        "vehicle": {"name": params.name, "params_digest": params.digest(),
+                    "nominal_params": params.as_nominal().to_dict()},
+        "control_period_s": filt.dt_nominal,
+        "gps": dict(gps),
+        "estimator": _estimator_dict(filt),
+        "schedule": SpeedSchedule.build(params.as_nominal()).to_dict(),
+        "controller": _controller_dict(ctl),
         "provenance": {"evstab_version": evstab_version(), "git_revision": git_revision(), "command": command,
                        "created_unix": time.time(), "python": sys.version.split()[0]},
     }

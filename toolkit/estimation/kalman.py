@@ -53,14 +53,25 @@ def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) ->
 
 
 def discretize(A, dt, o, n):
+    """``F = e^(A dt)`` and ``Gam = int_0^dt e^(A s) ds`` by 4th-order Taylor series."""
+    E, Gam = discretize_delta(A, dt, o, n)
+    return o.eye(n) + E, Gam
+
+
+def discretize_delta(A, dt, o, n):
+    """``E = F - I`` (without forming ``I + ...``) and ``Gam``.
+
+    The filter propagates with ``E``: at 1 kHz ``F``'s diagonal is ``1 - O(1e-3)``, and
+    storing it rounds away the small part's low digits (in float32 firmware, most of
+    them); ``x + E x`` and ``P + E P + P E^T + E P E^T`` keep them.
+    """
     M = A * dt
     M2 = M @ M
     M3 = M2 @ M
     M4 = M3 @ M
-    eye = o.eye(n)
-    F = eye + M + M2 / 2.0 + M3 / 6.0 + M4 / 24.0
-    Gam = (eye + M / 2.0 + M2 / 6.0 + M3 / 24.0 + M4 / 120.0) * dt
-    return F, Gam
+    E = M + M2 / 2.0 + M3 / 6.0 + M4 / 24.0
+    Gam = (o.eye(n) + M / 2.0 + M2 / 6.0 + M3 / 24.0 + M4 / 120.0) * dt
+    return E, Gam
 
 
 def _dot(a, b, o):
@@ -116,9 +127,9 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     A_hold, B_hold = continuous_model(d, v_m, o, dynamic=False)
     A = o.if_else(dyn, A_dyn, A_hold)
     B = o.if_else(dyn, B_dyn, B_hold)
-    F, Gam = discretize(A, dt, o, n)
+    E, Gam = discretize_delta(A, dt, o, n)
     uin = o.stack([steer, nzm])
-    x = F @ x + Gam @ (B @ uin)
+    x = x + (E @ x + Gam @ (B @ uin))
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
@@ -126,7 +137,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         for s in ("d1", "d2"):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
-    P = _propagate(F, P, o, n) + _diag(q * dt, o, n)
+    P = _propagate(E, P, o, n) + _diag(q * dt, o, n)
 
     # 2. gyro, every sample
     hg = _col(gyro_row(d), o)
@@ -186,7 +197,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
         # q = h A_d (I - L h) h^+ with the gain of the last fix; h^+ = h^T / (h h^T)
-        qd = _dot(hc, F @ (hc / _dot(hc, hc, o) - gain), o)
+        r_ = hc / _dot(hc, hc, o) - gain
+        qd = _dot(hc, r_ + E @ r_, o)
         eps_next = o.if_else(acc, innov, qd * eps)
         gain_next = o.if_else(acc, K, gain)
         x = o.if_else(acc, x, x + gain * (qd * eps))
@@ -210,17 +222,19 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     return z_next, y
 
 
-def _propagate(F, P, o, n):
-    """``F P F^T``. For casadi the upper triangle is built and mirrored, which halves the
-    second product in the generated code (numpy uses the plain product)."""
+def _propagate(E, P, o, n):
+    """``F P F^T`` with ``F = I + E``, as ``P + (M + M^T + M E^T)``, ``M = E P`` (see
+    :func:`discretize_delta`). For casadi the upper triangle is built and mirrored, which
+    halves the work in the generated code; numpy mirrors its upper triangle the same way)."""
+    M = E @ P
     if o is not CASADI:
-        return F @ P @ F.T
+        D = np.triu(P + (M + M.T + M @ E.T))
+        return D + np.triu(D, 1).T
     import casadi as ca
-    M = F @ P
     out = ca.SX.zeros(n, n)
     for i in range(n):
         for j in range(i, n):
-            e = ca.dot(M[i, :].T, F[j, :].T)
+            e = P[i, j] + (M[i, j] + M[j, i] + ca.dot(M[i, :].T, E[j, :].T))
             out[i, j] = e
             out[j, i] = e
     return out

@@ -124,18 +124,18 @@ def source(d: EcuDesign, p: Precision, info: dict) -> str:
     parts.append(f"EVSTAB_CALIBRATION evstab_real {names['inv_speed']}[{n}] = {c_array(sched.inv_speed, p)};")
     for r, row in enumerate(ROWS):
         parts.append(f"EVSTAB_CALIBRATION evstab_real {names[row]}[{n}] = {c_array(sched.table[r], p)};")
-    parts.append(f"static const volatile evstab_real *const {PREFIX}_sched_rows[{len(ROWS)}] = {{\n    "
-                 + ", ".join(names[r] for r in ROWS) + "\n};")
     parts.append(f"\n/* ---- initial state (evstab_init) ---- */\nstatic const evstab_real {PREFIX}_state0"
                  f"[EVSTAB_STATE_SIZE] = {c_array(d.initial_state(), p)};")
+    lerp = "\n".join(f"    rows[{r}] = {names[row]}[lo] + t * ({names[row]}[lo + 1] - {names[row]}[lo]);"
+                     for r, row in enumerate(ROWS))
     parts.append(f"""
 /* The schedule's rows at speed v (v > 0): segment by bisection, then linear in x = 1/v. */
 static void {PREFIX}_schedule(evstab_real v, evstab_real *rows)
 {{
     const volatile evstab_real *ax = {names['inv_speed']};
     evstab_real x = {p.literal(1.0)} / v;
-    evstab_real t;
-    int lo = 0, hi = EVSTAB_SCHEDULE_POINTS - 1, r;
+    evstab_real t, x0, x1;
+    int lo = 0, hi = EVSTAB_SCHEDULE_POINTS - 1;
     if (x < ax[0]) {{
         x = ax[0];
     }}
@@ -150,11 +150,10 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows)
             hi = mid;
         }}
     }}
-    t = (x - ax[lo]) / (ax[lo + 1] - ax[lo]);
-    for (r = 0; r < {len(ROWS)}; ++r) {{
-        const volatile evstab_real *row = {PREFIX}_sched_rows[r];
-        rows[r] = row[lo] + t * (row[lo + 1] - row[lo]);
-    }}
+    x0 = ax[lo];
+    x1 = ax[lo + 1];
+    t = (x - x0) / (x1 - x0);
+{lerp}
 }}
 """)
     cal_syms = [names[c.name] for c in cal]
