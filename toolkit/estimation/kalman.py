@@ -69,8 +69,8 @@ def discretize_delta(A, dt, o, n):
     M2 = M @ M
     M3 = M2 @ M
     M4 = M3 @ M
-    E = M + M2 / 2.0 + M3 / 6.0 + M4 / 24.0
-    Gam = (o.eye(n) + M / 2.0 + M2 / 6.0 + M3 / 24.0 + M4 / 120.0) * dt
+    E = M + M2 * 0.5 + M3 * (1.0 / 6.0) + M4 * (1.0 / 24.0)  # products, not divisions, in the generated code
+    Gam = (o.eye(n) + M * 0.5 + M2 * (1.0 / 6.0) + M3 * (1.0 / 24.0) + M4 * (1.0 / 120.0)) * dt
     return E, Gam
 
 
@@ -86,19 +86,38 @@ def _col(v, o):
     return np.asarray(v, float)
 
 
-def scalar_update(x, P, h, innov, r, o, n):
+def scalar_update(x, P, h, innov, r, o, n, gate=None):
     """Scalar measurement update in Joseph form; returns (x, P, S, K).
 
     ``(I - K h) P (I - K h)^T + K r K^T`` is evaluated in its expanded, O(n^2) form
     ``P - K m^T - m K^T + (h m + r) K K^T`` with ``m = P h^T``: the same expression for
     any gain ``K`` (so it keeps the Joseph form's validity and exact symmetry) without
-    the two n x n x n products.
+    the two n x n x n products. ``gate`` (0 or 1, number or symbol) multiplies the gain:
+    with 0 the update leaves ``x`` and ``P`` exactly as they were, with 1 it is the
+    plain update, so a conditional update needs no selection of every element.
+    The returned ``K`` is the ungated gain.
     """
     m = P @ h
     S = _dot(h, m, o) + r
-    K = m / S
-    P = P - o.outer(K, m) - o.outer(m, K) + o.outer(K, K) * S
-    return x + K * innov, P, S, K
+    K = m * (1.0 / S)
+    Kg = K if gate is None else K * gate
+    return x + Kg * innov, _joseph(P, Kg, m, S, o, n), S, K
+
+
+def _joseph(P, K, m, S, o, n):
+    """``P - K m^T - m K^T + S K K^T`` on the upper triangle, mirrored (exactly symmetric,
+    half the products)."""
+    if o is not CASADI:
+        D = np.triu(P - np.outer(K, m) - np.outer(m, K) + np.outer(K, K) * S)
+        return D + np.triu(D, 1).T
+    import casadi as ca
+    out = ca.SX.zeros(n, n)
+    for i in range(n):
+        for j in range(i, n):
+            e = P[i, j] - K[i] * m[j] - m[i] * K[j] + K[i] * K[j] * S
+            out[i, j] = e
+            out[j, i] = e
+    return out
 
 
 def wrap(a, o):
@@ -123,10 +142,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 1. predict with the model rediscretised at this speed
     dyn = v >= nz.min_speed
     v_m = o.fmax(v, nz.min_speed)
-    A_dyn, B_dyn = continuous_model(d, v_m, o, dynamic=True)
-    A_hold, B_hold = continuous_model(d, v_m, o, dynamic=False)
-    A = o.if_else(dyn, A_dyn, A_hold)
-    B = o.if_else(dyn, B_dyn, B_hold)
+    A, B = continuous_model(d, v_m, o, dynamic=dyn)
     E, Gam = discretize_delta(A, dt, o, n)
     uin = o.stack([steer, nzm])
     x = x + (E @ x + Gam @ (B @ uin))
@@ -146,9 +162,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 3. standstill: the yaw rate is zero
     if d.standstill_update:
         hs = _col(np.eye(n)[ir], o)
-        xs, Ps, _, _ = scalar_update(x, P, hs, 0.0 - x[ir], nz.standstill_std**2, o, n)
-        still = v < nz.standstill_speed
-        x, P = o.if_else(still, xs, x), o.if_else(still, Ps, P)
+        still = v < nz.standstill_speed  # 0/1 (a comparison: see continuous_model on if_else)
+        x, P, _, _ = scalar_update(x, P, hs, 0.0 - x[ir], nz.standstill_std**2, o, n, gate=still)
 
     # 4. course fix
     hc = o.zeros(n)

@@ -161,7 +161,10 @@ def continuous_model(d: FilterDesign, v, ops, dynamic=True):
     """Continuous ``A`` (n x n) and ``B`` (n x 2, inputs steer and N_z) at speed ``v``.
 
     With ``dynamic`` False (below ``min_speed``) the lateral model is held: only
-    ``psi' = r`` remains.
+    ``psi' = r`` remains. ``dynamic`` may also be a 0/1 condition (a comparison, number
+    or symbol): the lateral entries are then multiplied by it. (A product, not casadi's
+    ``if_else``: casadi pushes later products into an ``if_else``, so every term of the
+    discretisation would carry a selection.)
     """
     n = d.n
     A = ops.zeros(n, n)
@@ -169,21 +172,22 @@ def continuous_model(d: FilterDesign, v, ops, dynamic=True):
     ib, ir = d.index("beta"), d.index("yaw_rate")
     if "yaw" in d.states:
         A[d.index("yaw"), ir] = 1.0
-    if not dynamic:
+    if dynamic is False:
         return A, B
     if d.schedule is not None:
         a11, a12, a21, a22, b11, b21, b22 = d.schedule.values(v, ops)[:7]
     else:
         a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(d.params, v)
-    A[ib, ib], A[ib, ir], A[ir, ib], A[ir, ir] = a11, a12, a21, a22
-    B[ib, 0], B[ir, 0], B[ir, 1] = b11, b21, b22
+    gate = (lambda e: e) if dynamic is True else (lambda e: e * dynamic)
+    A[ib, ib], A[ib, ir], A[ir, ib], A[ir, ir] = gate(a11), gate(a12), gate(a21), gate(a22)
+    B[ib, 0], B[ir, 0], B[ir, 1] = gate(b11), gate(b21), gate(b22)
     if d.disturbance is not None:
         i1, i2 = d.index("d1"), d.index("d2")
-        A[ib, i1] = 1.0
-        A[ir, i2] = 1.0
+        A[ib, i1] = gate(1.0)
+        A[ir, i2] = gate(1.0)
         if d.disturbance == "gauss-markov":
-            A[i1, i1] = -1.0 / d.noise.disturbance_tau
-            A[i2, i2] = -1.0 / d.noise.disturbance_tau
+            A[i1, i1] = gate(-1.0 / d.noise.disturbance_tau)
+            A[i2, i2] = gate(-1.0 / d.noise.disturbance_tau)
     return A, B
 
 

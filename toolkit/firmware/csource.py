@@ -187,8 +187,14 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *o
 {{
     evstab_real sch[{2 * len(ROWS)}];
     evstab_real zn[EVSTAB_STATE_SIZE];
-    {PREFIX}_schedule({p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED), sch);
-    {PREFIX}_schedule({p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED), sch + {len(ROWS)});
+    const evstab_real vf = {p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED);
+    const evstab_real vc = {p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED);
+    {PREFIX}_schedule(vf, sch);
+    if (vc == vf) {{ /* above both minimum speeds: one lookup serves both */
+        memcpy(sch + {len(ROWS)}, sch, {len(ROWS)} * sizeof sch[0]);
+    }} else {{
+        {PREFIX}_schedule(vc, sch + {len(ROWS)});
+    }}
     if (in->gps_valid != 0) {{
         {PREFIX}_ecu_fix(s->z, in, sch, zn, out);
     }} else {{

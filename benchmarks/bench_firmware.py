@@ -1,0 +1,177 @@
+"""Firmware speed and footprint: ns per ``evstab_step`` and ``size`` of the exported object.
+
+1. A design folder for the bundled ``compact-ev`` (default ``dakf`` filter, seed 003's
+   K_beta = K_gamma = 5 rad/s) is exported as C in float64 and float32.
+2. Inputs: a 10 s, 1 kHz lane change at 60 km/h with a GPS outage (simulated), turned into
+   ECU input rows by ``evstab replay``'s reader.
+3. A timing harness (C, ``clock_gettime``) steps the exported ``evstab_step`` over the rows,
+   best of several passes; built with ``-O2``, with calibration data as exported
+   (``static const volatile``: read from memory, calibratable) and folded in
+   (``-DEVSTAB_CALIBRATION="static const"``).
+4. Reference in the same process: the Python replay (casadi's generated C for the same step,
+   called per 2000-sample chunk through ctypes) and the numpy step; ratios are printed.
+5. Footprint: ``size -A`` of ``evstab_firmware.o`` (text, rodata, data, bss) and the stack
+   frame of ``evstab_step`` and its callees from ``-fstack-usage``.
+
+Run: ``python benchmarks/bench_firmware.py``
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from controllers.two_dof import TwoDofDesign
+from plants import load_vehicle
+from plants.maneuvers import make_maneuver
+from plants.sensors import SensorConfig
+from toolkit.compiled import compiler
+from toolkit.design_job import basic_design_document
+from toolkit.estimation import design_filter
+from toolkit.firmware.csource import write_inputs_csv
+from toolkit.firmware.export import ecu_from_design, export_design
+from toolkit.firmware.replay import ecu_inputs, ecu_program
+from toolkit.simulator import simulate
+
+TIMER = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "evstab_firmware.h"
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+int main(int argc, char **argv)
+{
+    FILE *f = fopen(argv[1], "r");
+    long n = atol(argv[2]), k;
+    int passes = atoi(argv[3]), p, i;
+    evstab_input_t *in = malloc((size_t)n * sizeof *in);
+    double v[15], best = 1e30, check = 0.0;
+    char line[4096];
+    evstab_state_t s;
+    evstab_output_t out;
+    (void)argc;
+    if (fgets(line, sizeof line, f) == NULL) return 2;
+    for (k = 0; k < n; ++k) {
+        for (i = 0; i < 15; ++i) {
+            if (fscanf(f, i < 14 ? "%lf," : "%lf", &v[i]) != 1) return 2;
+        }
+        in[k].dt = v[0]; in[k].speed = v[1]; in[k].steer = v[2]; in[k].yaw_rate = v[3]; in[k].ay = v[4];
+        in[k].gps_valid = (int)v[5]; in[k].gps_course = v[6]; in[k].gps_speed = v[7]; in[k].gps_hdop = v[8];
+        in[k].gps_sats = (int)v[9]; in[k].steer_cmd_driver = v[10]; in[k].yaw_moment_applied = v[11];
+        in[k].steer_limited = (int)v[12]; in[k].yaw_moment_limited = (int)v[13]; in[k].mu = v[14];
+    }
+    for (p = 0; p < passes; ++p) {
+        double t0, t1;
+        evstab_init(&s);
+        t0 = now();
+        for (k = 0; k < n; ++k) {
+            evstab_step(&s, &in[k], &out);
+            check += (double)out.yaw_moment_cmd;
+        }
+        t1 = now();
+        if (t1 - t0 < best) best = t1 - t0;
+    }
+    printf("%.3f %.17g\n", 1e9 * best / (double)n, check);
+    free(in);
+    return 0;
+}
+"""
+
+
+def build_design(out: Path) -> Path:
+    p = load_vehicle("compact-ev")
+    doc = basic_design_document(p, design_filter("dakf", p), TwoDofDesign(p.as_nominal()),
+                                {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10},
+                                "benchmarks/bench_firmware.py")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "design.json").write_text(json.dumps(doc))
+    return out
+
+
+def sizes(obj: Path) -> dict:
+    out = subprocess.run(["size", "-A", str(obj)], capture_output=True, text=True, check=True).stdout
+    acc = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) < 2 or not parts[1].isdigit():
+            continue
+        name, size = parts[0], int(parts[1])
+        for key in acc:
+            if name.startswith("." + key) or (key == "data" and name.startswith(".data")):
+                acc[key] += size
+                break
+    return acc
+
+
+def main() -> None:
+    cc = compiler()
+    if cc is None:
+        raise SystemExit("bench_firmware: no C compiler")
+    tmp = Path(tempfile.mkdtemp(prefix="evstab_bench_fw_"))
+    design = build_design(tmp / "design")
+    d, _ = ecu_from_design(design)
+    p = load_vehicle("compact-ev")
+    man = make_maneuver("sine-lane-change", p, 60 / 3.6, np.radians(3.0))
+    log = simulate(p, "two-track", man, sensors=SensorConfig(gps_outages=((2.0, 4.0),)), seed=1).log_columns()
+    U = ecu_inputs(log, p.mu)
+    n = len(U)
+    inputs = tmp / "inputs.csv"
+    write_inputs_csv(str(inputs), U)
+
+    prog = ecu_program(d)
+    prog.run(U)  # warm (compiles or loads the cached library)
+    ref = min(_timed(lambda: prog.run(U)) for _ in range(5)) / n * 1e9
+    npy = ecu_program(d, "numpy")
+    k = 1000
+    ref_np = _timed(lambda: npy.run(U[:k])) / k * 1e9
+    print(f"compact-ev ECU step (dakf + 2-DOF), {n} steps, state {d.n_state} numbers, {len(d.calibration())} "
+          f"calibration scalars, schedule {len(d.schedule.inv_speed)} points x 9 rows")
+    print(f"reference in this process: evstab replay (casadi-generated C, {prog.backend}) {ref:8.1f} ns/step; "
+          f"numpy step {ref_np / 1000:8.1f} us/step")
+    for precision in ("float64", "float32"):
+        out = tmp / precision
+        export_design(design, out, ("c",), precision)
+        for label, defs in (("calibratable (volatile)", []), ("folded (static const)", ["-DEVSTAB_CALIBRATION=static const"])):
+            exe = out / "timer"
+            (out / "timer.c").write_text(TIMER)
+            subprocess.run([cc, "-std=c99", "-O2", *defs, "-o", str(exe), str(out / "evstab_firmware.c"),
+                            str(out / "timer.c"), "-lm"], check=True)
+            ns = float(subprocess.run([str(exe), str(inputs), str(n), "20"], capture_output=True, text=True,
+                                      check=True).stdout.split()[0])
+            print(f"  {precision} {label:24s} evstab_step {ns:7.1f} ns  (replay / C = {ref / ns:5.1f}x, "
+                  f"numpy / C = {ref_np / ns:7.0f}x; target <= 100 ns)")
+        obj = out / "evstab_firmware.o"
+        subprocess.run([cc, "-std=c99", "-O2", "-fstack-usage", "-c", "-o", str(obj), str(out / "evstab_firmware.c")],
+                       check=True, cwd=out)
+        sz = sizes(obj)
+        stack = {line.split()[0].split(":")[-1]: int(line.split()[1]) for line in
+                 (out / "evstab_firmware.su").read_text().splitlines()}
+        frame = stack.get("evstab_step", 0) + max(stack.get("evstab_ecu_fix", 0), stack.get("evstab_ecu_nofix", 0),
+                                                  stack.get("evstab_schedule", 0))
+        berkeley = subprocess.run(["size", str(obj)], capture_output=True, text=True, check=True).stdout.splitlines()
+        print(f"  {precision} footprint (size -A, -O2): text {sz['text']} B, rodata {sz['rodata']} B, data "
+              f"{sz['data']} B (the volatile calibration objects), bss {sz['bss']} B; stack <= {frame} B; "
+              f"size: {berkeley[-1].split()[:4]} (text data bss dec)")
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":
+    main()
