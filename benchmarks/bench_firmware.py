@@ -12,6 +12,8 @@
    called per 2000-sample chunk through ctypes) and the numpy step; ratios are printed.
 5. Footprint: ``size -A`` of ``evstab_firmware.o`` (text, rodata, data, bss) and the stack
    frame of ``evstab_step`` and its callees from ``-fstack-usage``.
+6. Agreement: the exported ``evstab_replay`` harness against evstab's replay on the same rows
+   (largest differences in sideslip, steer and yaw-moment commands).
 
 Run: ``python benchmarks/bench_firmware.py``
 """
@@ -34,6 +36,7 @@ from toolkit.compiled import compiler
 from toolkit.design_job import basic_design_document
 from toolkit.estimation import design_filter
 from toolkit.firmware.csource import write_inputs_csv
+from toolkit.firmware.ecu import OUTPUT_NAMES
 from toolkit.firmware.export import ecu_from_design, export_design
 from toolkit.firmware.replay import ecu_inputs, ecu_program
 from toolkit.simulator import simulate
@@ -132,7 +135,7 @@ def main() -> None:
     write_inputs_csv(str(inputs), U)
 
     prog = ecu_program(d)
-    prog.run(U)  # warm (compiles or loads the cached library)
+    Y_ref = prog.run(U)  # also warms (compiles or loads the cached library)
     ref = min(_timed(lambda: prog.run(U)) for _ in range(5)) / n * 1e9
     npy = ecu_program(d, "numpy")
     k = 1000
@@ -153,6 +156,14 @@ def main() -> None:
                                       check=True).stdout.split()[0])
             print(f"  {precision} {label:24s} evstab_step {ns:7.1f} ns  (replay / C = {ref / ns:5.1f}x, "
                   f"numpy / C = {ref_np / ns:7.0f}x; target <= 100 ns)")
+        rep = out / "evstab_replay"
+        subprocess.run([cc, "-std=c99", "-O2", "-o", str(rep), str(out / "evstab_firmware.c"),
+                        str(out / "evstab_replay.c"), "-lm"], check=True)
+        lines = subprocess.run([str(rep), str(inputs)], capture_output=True, text=True, check=True).stdout.splitlines()
+        Y = np.loadtxt(lines[1:], delimiter=",")
+        diff = {name: float(np.abs(Y[:, i] - Y_ref[:, i]).max()) for i, name in enumerate(OUTPUT_NAMES)}
+        print(f"  {precision} agreement with evstab replay over {n} steps: |d beta| {diff['beta']:.2e} rad, "
+              f"|d steer_cmd| {diff['steer_cmd']:.2e} rad, |d yaw_moment_cmd| {diff['yaw_moment_cmd']:.2e} N m")
         obj = out / "evstab_firmware.o"
         subprocess.run([cc, "-std=c99", "-O2", "-fstack-usage", "-c", "-o", str(obj), str(out / "evstab_firmware.c")],
                        check=True, cwd=out)
