@@ -159,6 +159,56 @@ def compile_library(funcs: list, key: str) -> Path | None:
     return lib
 
 
+def load_chunk_library(key: str, build, name: str, required: bool = False) -> "CFunction | None":
+    """The compiled chunk function ``name`` for cache ``key``: loaded from the cache without
+    calling ``build`` (which returns the casadi function) when it is there, compiled otherwise;
+    None without a C compiler (``required``: raise instead)."""
+    lib = cached_library(key)
+    if lib is None and compiler() is not None:
+        lib = compile_library([build()], key)
+    if lib is None:
+        if required:
+            raise RuntimeError("no C compiler available for backend 'c'")
+        return None
+    return CFunction(ctypes.CDLL(str(lib)), name)
+
+
+def run_chunks(z0, inputs: list, n_out: int, chunk: int, *, c_fn=None, casadi_fn=None, constants=(),
+               fix_column: int | None = None) -> np.ndarray:
+    """Roll a chunk function ``(z0, U_1 .. U_m, c_1 ..) -> (z_end, Y)`` over all samples.
+
+    ``inputs`` are (N, k_i) arrays (one row per sample), ``constants`` arrays passed
+    unchanged to every chunk. The last chunk is padded with the last row (``fix_column``
+    of the first input set to 0 there: padded samples carry no GPS fix). Runs the compiled
+    ``c_fn`` on numpy buffers when given, else ``casadi_fn``. Returns Y (N, n_out).
+    """
+    n = inputs[0].shape[0]
+    n_pad = -(-n // chunk) * chunk
+    padded = []
+    for U in inputs:
+        P = np.empty((n_pad, U.shape[1]))
+        P[:n] = U
+        P[n:] = U[-1]
+        padded.append(P)
+    if fix_column is not None:
+        padded[0][n:, fix_column] = 0.0
+    consts = [np.ascontiguousarray(c, dtype=float) for c in constants]
+    Y = np.empty((n_pad, n_out))
+    z = np.array(z0, dtype=float)
+    if c_fn is not None:
+        zn = np.empty_like(z)
+        for s in range(0, n_pad, chunk):
+            c_fn([z, *[P.ctypes.data + s * P.strides[0] for P in padded], *consts],
+                 [zn, Y.ctypes.data + s * Y.strides[0]])
+            z, zn = zn, z
+    else:
+        for s in range(0, n_pad, chunk):
+            zs, ys = casadi_fn(z, *[P[s:s + chunk].T for P in padded], *consts)
+            z = np.array(zs).ravel()
+            Y[s:s + chunk] = np.array(ys).T
+    return Y[:n]
+
+
 class CFunction:
     """Direct ctypes call of a casadi-generated C function on numpy buffers (no copies).
 

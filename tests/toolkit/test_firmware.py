@@ -328,7 +328,7 @@ def test_firmware_object_has_no_mutable_globals_heap_or_unbounded_stack(design_d
     for fn in ("evstab_schedule", "evstab_ecu_fix", "evstab_ecu_nofix"):
         body = text[text.index(f"static void {fn}("):]
         body = body[:body.index("\n}\n")]
-        assert "evstab_" not in body.split("{", 1)[1].replace(f"evstab_real", "").replace("evstab_cal_", "") \
+        assert "evstab_" not in body.split("{", 1)[1].replace("evstab_real", "").replace("evstab_cal_", "") \
             .replace("evstab_sched_", "").replace("evstab_input_t", "").replace("evstab_output_t", "")
 
 

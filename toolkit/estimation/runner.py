@@ -9,7 +9,6 @@ Without a C compiler the same casadi function runs in casadi's virtual machine;
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
 from dataclasses import dataclass
 from functools import lru_cache
@@ -19,7 +18,7 @@ import numpy as np
 
 from plants.backend import CASADI, NUMPY
 
-from ..compiled import CFunction, cached_library, compile_library, compiler, source_digest
+from ..compiled import load_chunk_library, run_chunks, source_digest
 from . import kalman, lob
 from .spec import FilterDesign
 
@@ -76,14 +75,10 @@ class CompiledFilter:
             from . import spec
             src = source_digest(kalman, lob, spec, plants.backend)
             key = "est_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
-            lib = cached_library(key)  # a compiled filter loads without rebuilding the casadi graph
-            if lib is None and compiler() is not None:
-                lib = compile_library([self.chunk_fn], key)
-            if lib is not None:
-                self._c = CFunction(ctypes.CDLL(str(lib)), "est_chunk")
+            # a compiled filter loads without rebuilding the casadi graph
+            self._c = load_chunk_library(key, lambda: self.chunk_fn, "est_chunk", required=backend == "c")
+            if self._c is not None:
                 self.backend = "c"
-            elif backend == "c":
-                raise RuntimeError("no C compiler available for backend 'c'")
 
     @property
     def step_fn(self) -> ca.Function:
@@ -116,24 +111,8 @@ class CompiledFilter:
                 else:
                     z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, 5] > 0.5))
             return Y
-        n_pad = -(-n // CHUNK) * CHUNK
-        Up = np.empty((n_pad, U.shape[1]))
-        Up[:n] = U
-        Up[n:] = U[-1]
-        Up[n:, 5] = 0.0  # padded samples carry no fix
-        Y = np.empty((n_pad, ny))
-        z = np.array(z0, dtype=float)
-        if self.backend == "c":
-            zn = np.empty_like(z)
-            for s in range(0, n_pad, CHUNK):
-                self._c([z, Up.ctypes.data + s * Up.strides[0]], [zn, Y.ctypes.data + s * Y.strides[0]])
-                z, zn = zn, z
-        else:
-            for s in range(0, n_pad, CHUNK):
-                zs, ys = self.chunk_fn(z, Up[s:s + CHUNK].T)
-                z = np.array(zs).ravel()
-                Y[s:s + CHUNK] = np.array(ys).T
-        return Y[:n]
+        return run_chunks(z0, [U], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
+                          casadi_fn=self.chunk_fn, fix_column=5)
 
 
 @lru_cache(maxsize=64)

@@ -18,7 +18,6 @@ the previous period; default 0). ``*_true`` columns are never read.
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
 from functools import lru_cache
 
@@ -29,7 +28,7 @@ import controllers.schedule
 import controllers.two_dof
 from plants.backend import NUMPY
 
-from ..compiled import CFunction, cached_library, compile_library, compiler, source_digest
+from ..compiled import load_chunk_library, run_chunks, source_digest
 from ..estimation import kalman
 from . import ecu as ecu_mod
 from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
@@ -88,14 +87,9 @@ class EcuProgram:
         if backend in ("auto", "c"):
             src = source_digest(ecu_mod, kalman, controllers.two_dof, controllers.schedule)
             key = "ecu_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
-            lib = cached_library(key)
-            if lib is None and compiler() is not None:
-                lib = compile_library([self.chunk_fn], key)
-            if lib is not None:
-                self._c = CFunction(ctypes.CDLL(str(lib)), "ecu_chunk")
+            self._c = load_chunk_library(key, lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")
+            if self._c is not None:
                 self.backend = "c"
-            elif backend == "c":
-                raise RuntimeError("no C compiler available for backend 'c'")
 
     @property
     def chunk_fn(self) -> ca.Function:
@@ -125,25 +119,8 @@ class EcuProgram:
             for k in range(n):
                 z, Y[k] = ecu_step(d, z, U[k], S[k], NUMPY, with_course=bool(U[k, ifix] > 0.5))
             return Y
-        n_pad = -(-n // CHUNK) * CHUNK
-        Up, Sp = np.empty((n_pad, U.shape[1])), np.empty((n_pad, S.shape[1]))
-        Up[:n], Sp[:n] = U, S
-        if n_pad > n:
-            Up[n:], Sp[n:] = U[-1], S[-1]
-            Up[n:, INPUT_NAMES.index("gps_valid")] = 0.0  # padded samples carry no fix
-        Y = np.empty((n_pad, ny))
-        if self.backend == "c":
-            zn = np.empty_like(z)
-            for s in range(0, n_pad, CHUNK):
-                self._c([z, Up.ctypes.data + s * Up.strides[0], Sp.ctypes.data + s * Sp.strides[0], self.cal],
-                        [zn, Y.ctypes.data + s * Y.strides[0]])
-                z, zn = zn, z
-        else:
-            for s in range(0, n_pad, CHUNK):
-                zs, ys = self.chunk_fn(z, Up[s:s + CHUNK].T, Sp[s:s + CHUNK].T, self.cal)
-                z = np.array(zs).ravel()
-                Y[s:s + CHUNK] = np.array(ys).T
-        return Y[:n]
+        return run_chunks(z, [U, S], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
+                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=INPUT_NAMES.index("gps_valid"))
 
 
 @lru_cache(maxsize=16)
