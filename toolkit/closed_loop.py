@@ -16,7 +16,6 @@ import copy
 import ctypes
 import dataclasses
 import hashlib
-import sys
 from dataclasses import dataclass
 
 import casadi as ca
@@ -24,7 +23,6 @@ import numpy as np
 
 import controllers.actuators as act_mod
 import controllers.two_dof as ctl_mod
-import plants.sensors as sens_mod
 from controllers.actuators import ActuatorLimits, actuator_law
 from controllers.two_dof import TwoDofDesign, control_law
 from plants import DISTURBANCES, TRUTH, VehicleParams, get_plant
@@ -190,7 +188,7 @@ class LoopProgram:
     def __init__(self, spec: LoopSpec):
         self.spec = spec
         self.step, self.chunk, self.names, self.sizes, self.est, self.nin = _build(spec)
-        src = source_digest(sys.modules[__name__], ctl_mod, act_mod, sens_mod, kal_mod)
+        src = source_digest()
         key = "loop_" + hashlib.sha256(repr((spec, ca.__version__, src, CHUNK, SLOTS)).encode()).hexdigest()[:20]
         lib = compile_library([self.chunk], key)
         self.cf = CFunction(ctypes.CDLL(str(lib)), "loop_chunk") if lib is not None else None

@@ -104,13 +104,18 @@ def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
     return step, names
 
 
-def source_digest(*modules) -> str:
-    """Digest of the source files of ``modules``: part of every compiled-cache key, so a code
-    change can never reuse a stale library."""
-    import inspect
+@lru_cache(maxsize=1)
+def source_digest() -> str:
+    """Digest of evstab's own source, every module of ``plants``, ``controllers`` and
+    ``toolkit``: part of every compiled-cache key, so a code change can never reuse a stale
+    library. (Per-module lists went stale: a traced graph reaches into modules its key did
+    not name, and a changed filter once reused an old tuning library.)"""
     h = hashlib.sha256()
-    for m in modules:
-        h.update(inspect.getsource(m).encode())
+    root = Path(__file__).resolve().parent.parent
+    for pkg in ("plants", "controllers", "toolkit"):
+        for f in sorted((root / pkg).rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -277,10 +282,7 @@ class CompiledPlant:
         # The parameter vector is passed once per chunk and repeated inside.
         chunk = ca.Function("rollout", mx, acc(mx[0], mx[1], mx[2], ca.repmat(mx[3], 1, CHUNK)),
                             ["x0", "cmd", "w", "p"], ["X", "Y"])
-        import plants.backend
-        import plants.tires
-        import sys as _sys
-        src = source_digest(_sys.modules[model.f.__module__], plants.backend, plants.tires, _sys.modules[__name__])
+        src = source_digest()
         key = hashlib.sha256("|".join([CODE_VERSION, model.name, ",".join(names), repr(self.dt),
                                        str(self.n_sub), ca.__version__, src]).encode()).hexdigest()[:20]
         lib = compile_library([step, chunk], key) if compile else None

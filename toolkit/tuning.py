@@ -33,7 +33,6 @@ import ctypes
 import hashlib
 import multiprocessing as mp
 import os
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -86,7 +85,7 @@ class RolloutCost:
         self.n = int(round(sweep.MANEUVER_DURATION / cfg.dt))
         self.nz_max = cfg.base_design().nz_max
         self.fn = _cost_function(self.prog, self.n, self.nz_max)
-        src = source_digest(sys.modules[__name__], closed_loop, sweep)
+        src = source_digest()
         key = "tune_" + hashlib.sha256(repr((cfg.spec(), self.n, ca.__version__, src)).encode()).hexdigest()[:20]
         lib = compile_library([self.fn], key)
         self.cf = CFunction(ctypes.CDLL(str(lib)), "tune_cost") if lib is not None else None

@@ -71,9 +71,7 @@ class CompiledFilter:
         self.backend = "numpy" if backend == "numpy" else "vm"
         self._step_fn = self._chunk_fn = None
         if backend in ("auto", "c"):
-            import plants.backend
-            from . import spec
-            src = source_digest(kalman, lob, spec, plants.backend)
+            src = source_digest()
             key = "est_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
             # a compiled filter loads without rebuilding the casadi graph
             self._c = load_chunk_library(key, lambda: self.chunk_fn, "est_chunk", required=backend == "c")

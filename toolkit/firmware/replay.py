@@ -24,13 +24,9 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-import controllers.schedule
-import controllers.two_dof
 from plants.backend import NUMPY
 
 from ..compiled import load_chunk_library, run_chunks, source_digest
-from ..estimation import kalman
-from . import ecu as ecu_mod
 from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
 
 CHUNK = 2000
@@ -85,7 +81,7 @@ class EcuProgram:
         self.backend = "numpy" if backend == "numpy" else "vm"
         self._chunk = None
         if backend in ("auto", "c"):
-            src = source_digest(ecu_mod, kalman, controllers.two_dof, controllers.schedule)
+            src = source_digest()
             key = "ecu_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
             self._c = load_chunk_library(key, lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")
             if self._c is not None:
