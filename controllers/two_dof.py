@@ -119,14 +119,16 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     v = s.speed
     vm = o.fmax(v, d.min_speed)
     # reference model (seed 003 eq. 23-24) with the friction limit, then the lag
+    # (a design that carries a speed schedule reads the model's coefficients and the reference
+    # gains from its tables: the firmware's arithmetic)
     if d.schedule is not None:
-        sched = d.schedule.values(vm, o)
-        kb, kg = sched[7], sched[8]
+        a11, a12, a21, a22, b11, b21, b22, kb, kg = d.schedule.values(vm, o)
     else:
         L, g = p.wheelbase, p.stability_factor
         den = 1.0 + g * vm * vm
         kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
         kg = vm / (L * den)
+        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
     beta_ss, gamma_ss = kb * s.steer_driver, kg * s.steer_driver
     limit = d.friction_margin * s.mu * G / vm
     mag = o.fabs(gamma_ss)
@@ -137,10 +139,6 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
     xb_next, xr_next = beta_ss + (xb - beta_ss) * lag, gamma_ss + (xr - gamma_ss) * lag
     # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d)
-    if d.schedule is not None:
-        a11, a12, a21, a22, b11, b21, b22 = sched[:7]
-    else:
-        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
     e_b = o.fmin(o.fmax(xb - s.beta, -d.beta_error_max), d.beta_error_max) if np.isfinite(d.beta_error_max) \
         else xb - s.beta
     e_r = xr - s.yaw_rate

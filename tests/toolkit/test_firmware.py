@@ -399,3 +399,18 @@ def test_ecu_design_rejects_what_firmware_cannot_run():
     p = load_vehicle("compact-ev").as_nominal()
     with pytest.raises(ValueError, match="Kalman-filter methods"):
         EcuDesign.from_designs(design_filter("lob", p), TwoDofDesign(p))
+
+
+def test_replay_and_estimate_refuse_bad_input_and_write_nothing(tmp_path, capsys, design_dir, closed_loop):
+    _, log = closed_loop
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(log), "--design", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
+    assert "nowhere" in capsys.readouterr().err and not out.exists()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,speed,steer,yaw_rate,gps_course\n0,10,0,0,\n0.001,10,zero,0,\n")
+    for cmd in (["replay", str(bad), "--design", str(design_dir), "--out", str(out)],
+                ["estimate", str(bad), "--design", str(design_dir), "--out", str(out)]):
+        assert main(cmd) == 2
+        err = capsys.readouterr().err
+        assert "bad.csv" in err and "steer" in err and "3" in err  # file, column, line
+        assert not out.exists() and not list(tmp_path.glob(".out.csv*"))
