@@ -21,3 +21,12 @@ def compact():
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261121)
+
+
+@pytest.fixture(scope="session")
+def quick_design_dir(tmp_path_factory):
+    """``evstab design --quick`` on compact-ev, run once for every test that needs a real design folder."""
+    from toolkit.cli import main
+    out = tmp_path_factory.mktemp("quick_design")
+    assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+    return out

@@ -103,11 +103,8 @@ def test_quick_cases_cover_the_issue_ranges():
 
 # ----------------------------------------------------------------- the whole job (quick)
 @pytest.fixture(scope="module")
-def design_dir(tmp_path_factory):
-    from toolkit.cli import main
-    out = tmp_path_factory.mktemp("design")
-    assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
-    return out
+def design_dir(quick_design_dir):
+    return quick_design_dir  # tests/conftest.py: one quick design run shared by the suite
 
 
 def test_design_outputs_and_the_tuned_design_beats_the_paper(design_dir):

@@ -414,3 +414,25 @@ def test_replay_and_estimate_refuse_bad_input_and_write_nothing(tmp_path, capsys
         err = capsys.readouterr().err
         assert "bad.csv" in err and "steer" in err and "3" in err  # file, column, line
         assert not out.exists() and not list(tmp_path.glob(".out.csv*"))
+
+
+@needs_cc
+def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_dir, closed_loop, tmp_path):
+    """The whole flow on what `evstab design --quick` wrote (tuned gains and noise): export every format,
+    build the C strictly, replay the closed-loop log both ways."""
+    out = tmp_path / "fw"
+    assert main(["export", str(quick_design_dir), "--out", str(out)]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"evstab_firmware.h", "evstab_firmware.c", "evstab_replay.c", "evstab_gains.json",
+                     "evstab_firmware.a2l", "evstab_firmware.cdfx"}
+    doc = json.loads((out / "evstab_gains.json").read_text())
+    tuned = json.loads((quick_design_dir / "design.json").read_text())["designs"]["tuned"]
+    cal = {c["name"]: c["value"] for c in doc["calibration"]}
+    assert cal["k_beta"] == tuned["k_beta"] and cal["q_d2"] == tuned["q_d2"]  # the tuned design travels
+    _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),
+          str(out / "evstab_replay.c"), "-lm"])
+    _, log_path = closed_loop
+    rep, inputs = _replay_cli(quick_design_dir, log_path, tmp_path)
+    Y = _harness(out / "replay", inputs)
+    for i, name in enumerate(OUTPUT_NAMES):
+        np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
