@@ -157,6 +157,23 @@ def cmd_replay(args) -> int:
     return 0
 
 
+def cmd_convert(args) -> int:
+    from .logio import REQUIRED, read_log_csv, write_log_csv
+    from .nmea import merge_onto_imu, read_nmea
+
+    gps = read_nmea(args.nmea)
+    imu_required = tuple(c for c in REQUIRED if c != "gps_course")
+    imu = read_log_csv(args.imu, required=imu_required)
+    cols = {k: v for k, v in imu.columns.items() if not k.startswith("gps_")}
+    merged, counts = merge_onto_imu(cols, gps, args.time_offset)
+    write_log_csv(args.out, merged)
+    fixes = int(np.isfinite(merged["gps_course"]).sum())
+    print(f"{args.nmea} + {args.imu}: {len(gps)} GPS epochs, {counts['placed']} placed on {len(cols['t'])} IMU rows "
+          f"({fixes} with a course), {counts['before']} before and {counts['after']} after the IMU log dropped "
+          f"-> {args.out}")
+    return 0
+
+
 def cmd_export(args) -> int:
     import shlex
     from .firmware.export import FORMATS, export_design
@@ -262,6 +279,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="CSV of the ECU outputs to write")
     sp.add_argument("--inputs-out", help="also write the ECU input rows (for the exported evstab_replay harness)")
     sp.set_defaults(func=cmd_replay)
+    sp = sub.add_parser("convert", help="merge an NMEA 0183 GNSS log with an IMU CSV into a drive-log CSV")
+    sp.add_argument("--nmea", required=True, help="NMEA 0183 log (RMC/VTG/GGA/GSA/HDT; checksums verified)")
+    sp.add_argument("--imu", required=True, help="IMU CSV: the drive-log schema's columns without the GPS ones")
+    sp.add_argument("--time-offset", type=_finite, default=0.0,
+                    help="GPS time [s from 00:00 UTC] minus IMU time t (default 0: t is UTC seconds of day)")
+    sp.add_argument("--out", required=True, help="drive-log CSV to write")
+    sp.set_defaults(func=cmd_convert)
     sp = sub.add_parser("export", help="export a design as firmware: C99, JSON gain set, A2L, CDFX")
     sp.add_argument("design_dir", help="an 'evstab design' folder")
     sp.add_argument("--format", choices=["c", "json", "a2l", "cdfx", "all"], default="all")

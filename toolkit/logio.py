@@ -127,7 +127,8 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
     return v
 
 
-def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None) -> DriveLog:
+def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None,
+                 required: tuple[str, ...] = REQUIRED) -> DriveLog:
     """Read and validate a drive-log CSV (see the module docstring for the errors).
 
     A fast path (pyarrow's CSV parser) reads well-formed files; anything it does not
@@ -135,12 +136,14 @@ def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None) -> Dr
     the row and column.
     ``columns`` restricts the result (and the fast parser's work) to those columns
     plus the required ones; other columns are then neither parsed nor checked.
+    ``required``: the columns that must be there (default the schema's; an IMU log that
+    is to be merged with a GNSS log has no ``gps_course`` yet).
     """
-    keep = None if columns is None else tuple(dict.fromkeys(REQUIRED + tuple(columns)))
-    fast = _read_fast(Path(path), keep)
+    keep = None if columns is None else tuple(dict.fromkeys(tuple(required) + tuple(columns)))
+    fast = _read_fast(Path(path), keep, tuple(required))
     if fast is not None:
         return fast
-    log = _read_strict(Path(path))
+    log = _read_strict(Path(path), tuple(required))
     if keep is None:
         return log
     return DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
@@ -149,7 +152,8 @@ def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None) -> Dr
 _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
 
 
-def _read_fast(path: Path, keep: tuple[str, ...] | None = None) -> DriveLog | None:
+def _read_fast(path: Path, keep: tuple[str, ...] | None = None, required: tuple[str, ...] = REQUIRED) \
+        -> DriveLog | None:
     """pyarrow's multi-threaded CSV parser; None whenever the file is not plainly well formed."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -159,7 +163,7 @@ def _read_fast(path: Path, keep: tuple[str, ...] | None = None) -> DriveLog | No
         if first.startswith(b"\xef\xbb\xbf") or not first.strip():
             return None  # BOM or empty: the strict reader explains or handles it
         names = [h.strip() for h in first.decode("utf-8").rstrip("\r\n").split(",")]
-        if len(set(names)) != len(names) or any(not n for n in names) or any(c not in names for c in REQUIRED):
+        if len(set(names)) != len(names) or any(not n for n in names) or any(c not in names for c in required):
             return None
         wanted = names if keep is None else [n for n in names if n in keep]
         table = pacsv.read_csv(
@@ -183,7 +187,7 @@ def _read_fast(path: Path, keep: tuple[str, ...] | None = None) -> DriveLog | No
     return DriveLog(columns, str(path))
 
 
-def _read_strict(path: Path) -> DriveLog:
+def _read_strict(path: Path, required: tuple[str, ...] = REQUIRED) -> DriveLog:
     source = str(path)
     try:
         raw = path.read_bytes()
@@ -198,14 +202,14 @@ def _read_strict(path: Path) -> DriveLog:
         header = next(reader)
     except StopIteration:
         raise LogFormatError(f"{source}: empty file, expected a header row with columns "
-                             f"{', '.join(REQUIRED)}") from None
+                             f"{', '.join(required)}") from None
     header = [h.strip() for h in header]
     seen = set()
     for h in header:
         if h in seen:
             raise LogFormatError(f"{source}: row 1: duplicate column '{h}'")
         seen.add(h)
-    for c in REQUIRED:
+    for c in required:
         if c not in seen:
             raise LogFormatError(f"{source}: row 1: missing required column '{c}'")
     known = {c for c, _, _ in SCHEMA} | set(TRUTH_COLUMNS)
