@@ -29,6 +29,15 @@ SCHEMA = (
 )
 """(column, unit, required) of the drive-log schema, in the order the writer uses."""
 REQUIRED = tuple(c for c, _, req in SCHEMA if req)
+PLAUSIBLE = {
+    "speed": (-30.0, 150.0), "steer": (-1.2, 1.2), "yaw_moment": (-1e5, 1e5), "yaw_rate": (-10.0, 10.0),
+    "ax": (-100.0, 100.0), "ay": (-100.0, 100.0), "roll_rate": (-10.0, 10.0),
+    "wheel_speed_fl": (-1000.0, 1000.0), "wheel_speed_fr": (-1000.0, 1000.0), "wheel_speed_rl": (-1000.0, 1000.0),
+    "wheel_speed_rr": (-1000.0, 1000.0), "gps_speed": (0.0, 150.0), "gps_hdop": (0.0, 100.0), "gps_sats": (0.0, 255.0),
+}
+"""Physically possible range of each schema column (SI): 540 km/h, 69 deg of road-wheel angle,
+573 deg/s, 10 g, 1000 rad/s wheel speed. A value outside is a unit or scaling error (km/h for
+m/s, deg for rad), which the reader names instead of passing on."""
 TRUTH_COLUMNS = ("beta_true", "yaw_rate_true", "yaw_true", "vx_true", "vy_true", "roll_true")
 
 
@@ -140,13 +149,26 @@ def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None,
     is to be merged with a GNSS log has no ``gps_course`` yet).
     """
     keep = None if columns is None else tuple(dict.fromkeys(tuple(required) + tuple(columns)))
-    fast = _read_fast(Path(path), keep, tuple(required))
-    if fast is not None:
-        return fast
-    log = _read_strict(Path(path), tuple(required))
-    if keep is None:
-        return log
-    return DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
+    log = _read_fast(Path(path), keep, tuple(required))
+    if log is None:
+        log = _read_strict(Path(path), tuple(required))
+        if keep is not None:
+            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
+    _check_ranges(log)
+    return log
+
+
+def _check_ranges(log: DriveLog) -> None:
+    for name, (lo, hi) in PLAUSIBLE.items():
+        v = log.columns.get(name)
+        if v is None:
+            continue
+        bad = np.flatnonzero(np.isfinite(v) & ((v < lo) | (v > hi)))
+        if len(bad):
+            unit = next(u for c, u, _ in SCHEMA if c == name)
+            raise LogFormatError(f"{log.source}: row {int(bad[0]) + 2}, column '{name}': {float(v[bad[0]])!r} "
+                                 f"is outside the possible range [{lo:g}, {hi:g}] {unit} (a unit or scaling "
+                                 f"error?)")
 
 
 _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
@@ -238,6 +260,6 @@ def _read_strict(path: Path, required: tuple[str, ...] = REQUIRED) -> DriveLog:
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if len(bad):
         r = int(bad[0]) + 3
-        raise LogFormatError(f"{source}: row {r}, column 't': {t[bad[0] + 1]!r} is not after the previous "
-                             f"time {t[bad[0]]!r}; t must be strictly increasing")
+        raise LogFormatError(f"{source}: row {r}, column 't': {float(t[bad[0] + 1])!r} is not after the previous "
+                             f"time {float(t[bad[0]])!r}; t must be strictly increasing")
     return DriveLog(cols, source)
