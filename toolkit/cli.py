@@ -83,7 +83,7 @@ def cmd_simulate(args) -> int:
 def cmd_estimate(args) -> int:
     from .estimation import design_filter, run_estimator
     from .estimation.kalman import OUTPUTS
-    from .logio import read_log_csv, write_log_table
+    from .logio import read_log, write_log_table
 
     if (args.vehicle is None) == (args.design is None):
         raise EvstabError("give --vehicle (a filter designed from its nominal parameters) or --design (the "
@@ -92,7 +92,7 @@ def cmd_estimate(args) -> int:
         return _estimate_designed(args)
     p = load_vehicle(args.vehicle)
     needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay")  # plus the schema's required columns
-    log = read_log_csv(args.log, columns=needed).without_truth()
+    log = read_log(args.log, needed, args.channel_map).without_truth()
     d = design_filter(args.method, p, latency=args.gps_latency)
     est = run_estimator(d, log)
     cols = {"t": est.t}
@@ -114,10 +114,10 @@ ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_st
 def _replay(args):
     from .firmware.export import ecu_from_design
     from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
-    from .logio import read_log_csv
+    from .logio import read_log
 
     d, _ = ecu_from_design(args.design)
-    log = read_log_csv(args.log, columns=LOG_COLUMNS).without_truth()
+    log = read_log(args.log, LOG_COLUMNS, args.channel_map).without_truth()
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal)
     prog = ecu_program(d)
@@ -158,19 +158,27 @@ def cmd_replay(args) -> int:
 
 
 def cmd_convert(args) -> int:
-    from .logio import REQUIRED, read_log_csv, write_log_csv
+    from .logio import REQUIRED, read_log, read_log_csv, write_log_csv
     from .nmea import merge_onto_imu, read_nmea
 
-    gps = read_nmea(args.nmea)
-    imu_required = tuple(c for c in REQUIRED if c != "gps_course")
-    imu = read_log_csv(args.imu, required=imu_required)
-    cols = {k: v for k, v in imu.columns.items() if not k.startswith("gps_")}
-    merged, counts = merge_onto_imu(cols, gps, args.time_offset)
+    if (args.log is None) == (args.nmea is None):
+        raise EvstabError("give an MDF log with --channel-map, or --nmea GPS.nmea with --imu IMU.csv")
+    if args.nmea is not None:
+        if args.imu is None or args.channel_map is not None:
+            raise EvstabError("--nmea goes with --imu IMU.csv (and no --channel-map)")
+        gps = read_nmea(args.nmea)
+        imu = read_log_csv(args.imu, required=tuple(c for c in REQUIRED if c != "gps_course"))
+        cols = {k: v for k, v in imu.columns.items() if not k.startswith("gps_")}
+        merged, counts = merge_onto_imu(cols, gps, args.time_offset)
+        what = (f"{args.nmea} + {args.imu}: {len(gps)} GPS epochs, {counts['placed']} placed on {len(cols['t'])} IMU "
+                f"rows, {counts['before']} before and {counts['after']} after the IMU log dropped")
+    else:
+        if args.imu is not None or args.time_offset != 0.0:
+            raise EvstabError("--imu and --time-offset go with --nmea")
+        merged = read_log(args.log, None, args.channel_map).columns
+        what = f"{args.log}: {len(merged['t'])} rows"
     write_log_csv(args.out, merged)
-    fixes = int(np.isfinite(merged["gps_course"]).sum())
-    print(f"{args.nmea} + {args.imu}: {len(gps)} GPS epochs, {counts['placed']} placed on {len(cols['t'])} IMU rows "
-          f"({fixes} with a course), {counts['before']} before and {counts['after']} after the IMU log dropped "
-          f"-> {args.out}")
+    print(f"{what}; {int(np.isfinite(merged['gps_course']).sum())} GPS fixes -> {args.out}")
     return 0
 
 
@@ -263,12 +271,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_simulate)
     from .estimation import METHODS
     sp = sub.add_parser("estimate", help="estimate sideslip, yaw rate and yaw from a drive log")
-    sp.add_argument("log", help="drive-log CSV (DESIGN.md schema)")
+    sp.add_argument("log", help="drive log: CSV (DESIGN.md schema), .csv.gz, or .mf4 with --channel-map")
     sp.add_argument("--vehicle", help="bundled name or TOML path (its nominal parameters are used)")
     sp.add_argument("--design", help="an 'evstab design' folder: run its estimator exactly as exported "
                                      "(instead of --vehicle/--method)")
     sp.add_argument("--method", choices=METHODS, default="dakf")
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
+    sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
     sp.add_argument("--out", required=True, help="estimate CSV to write")
     sp.set_defaults(func=cmd_estimate)
     sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")
@@ -278,10 +287,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--mu", type=_positive, help="friction the reference assumes (default: the vehicle's)")
     sp.add_argument("--out", required=True, help="CSV of the ECU outputs to write")
     sp.add_argument("--inputs-out", help="also write the ECU input rows (for the exported evstab_replay harness)")
+    sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
     sp.set_defaults(func=cmd_replay)
-    sp = sub.add_parser("convert", help="merge an NMEA 0183 GNSS log with an IMU CSV into a drive-log CSV")
-    sp.add_argument("--nmea", required=True, help="NMEA 0183 log (RMC/VTG/GGA/GSA/HDT; checksums verified)")
-    sp.add_argument("--imu", required=True, help="IMU CSV: the drive-log schema's columns without the GPS ones")
+    sp = sub.add_parser("convert", help="an MDF4 log (with a channel map), or an NMEA 0183 GNSS log and an IMU "
+                                        "CSV, to a drive-log CSV")
+    sp.add_argument("log", nargs="?", help="MDF4 log (.mf4) to convert (with --channel-map)")
+    sp.add_argument("--channel-map", help="TOML: the MDF channel, unit and scale of each schema column")
+    sp.add_argument("--nmea", help="NMEA 0183 log (RMC/VTG/GGA/GSA/HDT; checksums verified)")
+    sp.add_argument("--imu", help="with --nmea: IMU CSV, the drive-log schema's columns without the GPS ones")
     sp.add_argument("--time-offset", type=_finite, default=0.0,
                     help="GPS time [s from 00:00 UTC] minus IMU time t (default 0: t is UTC seconds of day)")
     sp.add_argument("--out", required=True, help="drive-log CSV to write")

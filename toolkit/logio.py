@@ -9,6 +9,7 @@ column and what was expected.
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import math
 import os
@@ -136,6 +137,25 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
     return v
 
 
+def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_map=None) -> DriveLog:
+    """A drive log from ``.csv``, ``.csv.gz`` or an MDF4 file (``.mf4``/``.mdf``, with a channel map:
+    :mod:`toolkit.mdf`)."""
+    name = str(path).lower()
+    if name.endswith((".mf4", ".mdf")):
+        if channel_map is None:
+            raise LogFormatError(f"{path}: an MDF log needs a channel map (--channel-map MAP.toml) that names "
+                                 f"the channel of each schema column")
+        from .mdf import read_mdf
+        log = read_mdf(path, channel_map)
+        if columns is not None:
+            keep = set(REQUIRED) | set(columns)
+            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
+        return log
+    if channel_map is not None:
+        raise LogFormatError(f"{path}: --channel-map is for MDF logs (.mf4), this is read as CSV")
+    return read_log_csv(path, columns)
+
+
 def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None,
                  required: tuple[str, ...] = REQUIRED) -> DriveLog:
     """Read and validate a drive-log CSV (see the module docstring for the errors).
@@ -154,11 +174,33 @@ def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None,
         log = _read_strict(Path(path), tuple(required))
         if keep is not None:
             log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
-    _check_ranges(log)
+    check_ranges(log)
     return log
 
 
-def _check_ranges(log: DriveLog) -> None:
+def place_on_rows(t: np.ndarray, t_samples: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Rows of the time base ``t`` that slower samples (GPS fixes) land on: each on the first row at
+    or after its time, so no sample is invented between real ones and none is used before it exists.
+
+    Returns the rows, the mask of samples inside the log and counts (``placed``, ``before``,
+    ``after``). Two samples on one row (the base slower than the samples) is a
+    :class:`LogFormatError` naming the row.
+    """
+    tol = 1e-9 * max(1.0, float(np.max(np.abs(t))))  # timestamps written with rounding
+    k = np.searchsorted(t, np.asarray(t_samples, float) - tol, side="left")
+    inside = (t_samples >= t[0] - tol) & (k < len(t))
+    rows = k[inside]
+    if len(rows) != len(np.unique(rows)):
+        dup = rows[np.flatnonzero(np.diff(rows) == 0)[0]]
+        raise LogFormatError(f"{source}: two samples fall on row {int(dup) + 2} (t = {float(t[dup])!r}) of the time "
+                             f"base; it must be sampled faster than them")
+    counts = {"placed": int(inside.sum()), "before": int((t_samples < t[0] - tol).sum()),
+              "after": int(((t_samples >= t[0] - tol) & (k >= len(t))).sum())}
+    return rows, inside, counts
+
+
+def check_ranges(log: DriveLog) -> None:
+    """Raise :class:`LogFormatError` at the first value outside :data:`PLAUSIBLE` (row, column, range)."""
     for name, (lo, hi) in PLAUSIBLE.items():
         v = log.columns.get(name)
         if v is None:
@@ -180,7 +222,8 @@ def _read_fast(path: Path, keep: tuple[str, ...] | None = None, required: tuple[
     import pyarrow as pa
     import pyarrow.csv as pacsv
     try:
-        with open(path, "rb") as fh:
+        opener = gzip.open if path.suffix.lower() == ".gz" else open
+        with opener(path, "rb") as fh:
             first = fh.readline()
         if first.startswith(b"\xef\xbb\xbf") or not first.strip():
             return None  # BOM or empty: the strict reader explains or handles it
@@ -198,7 +241,7 @@ def _read_fast(path: Path, keep: tuple[str, ...] | None = None, required: tuple[
     names = wanted
     columns = {n: table.column(n).to_numpy(zero_copy_only=False).astype(float, copy=False) for n in names}
     for c in _NEVER_EMPTY:
-        if not np.all(np.isfinite(columns[c])):
+        if c in columns and not np.all(np.isfinite(columns[c])):
             return None
     known = {c for c, _, _ in SCHEMA} | set(TRUTH_COLUMNS)
     for c in known & set(columns):
@@ -213,8 +256,12 @@ def _read_strict(path: Path, required: tuple[str, ...] = REQUIRED) -> DriveLog:
     source = str(path)
     try:
         raw = path.read_bytes()
+        if path.suffix.lower() == ".gz":
+            raw = gzip.decompress(raw)
     except OSError as exc:
-        raise LogFormatError(f"{source}: cannot read: {exc.strerror}") from None
+        raise LogFormatError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    except EOFError:
+        raise LogFormatError(f"{source}: the gzip stream ends early (truncated file)") from None
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -180,27 +180,16 @@ def read_nmea(path) -> GpsEpochs:
 
 
 def merge_onto_imu(imu: dict, gps: GpsEpochs, time_offset: float = 0.0) -> tuple[dict, dict]:
-    """The GPS epochs placed on the IMU time base: each epoch on the first IMU row at or after
-    ``t_gps - time_offset``; no fix is invented between real ones (rows without an epoch are NaN).
-
-    Returns the merged columns and counts (``placed``, ``before``, ``after``: epochs outside the IMU
-    log, dropped). Two epochs on one IMU row (GPS faster than the IMU) is an error.
-    """
+    """The GPS epochs placed on the IMU time base (:func:`toolkit.logio.place_on_rows`, with
+    ``t_gps - time_offset``). Returns the merged columns and the counts (``placed``, and
+    ``before``/``after``: epochs outside the IMU log, dropped)."""
+    from .logio import place_on_rows
     t = np.asarray(imu["t"], float)
-    tg = gps.t - time_offset
-    k = np.searchsorted(t, tg - 1e-9, side="left")
-    inside = (tg >= t[0] - 1e-9) & (k < len(t))
-    rows = k[inside]
-    if len(rows) != len(np.unique(rows)):
-        dup = rows[np.flatnonzero(np.diff(rows) == 0)[0]]
-        raise NmeaFormatError(f"{gps.source}: two GPS epochs fall on IMU row {int(dup) + 2} (t = {t[dup]!r}); "
-                              f"the IMU log must be sampled faster than the GPS")
+    rows, inside, counts = place_on_rows(t, gps.t - time_offset, gps.source)
     out = dict(imu)
     for name, values in (("gps_course", gps.course), ("gps_speed", gps.speed), ("gps_hdop", gps.hdop),
                          ("gps_sats", gps.sats), ("gps_heading", gps.heading)):
         col = np.full(len(t), math.nan)
         col[rows] = values[inside]
         out[name] = col
-    counts = {"placed": int(inside.sum()), "before": int((tg < t[0] - 1e-9).sum()),
-              "after": int(((tg >= t[0] - 1e-9) & (k >= len(t))).sum())}
     return out, counts

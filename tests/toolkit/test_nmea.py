@@ -11,7 +11,7 @@ from plants import load_vehicle
 from plants.maneuvers import make_maneuver
 from plants.sensors import SensorConfig
 from toolkit.cli import main
-from toolkit.logio import read_log_csv, write_log_csv
+from toolkit.logio import LogFormatError, read_log_csv, write_log_csv
 from toolkit.nmea import KNOT, NmeaFormatError, merge_onto_imu, read_nmea
 from toolkit.simulator import simulate
 
@@ -112,7 +112,7 @@ def test_merge_places_each_epoch_on_one_imu_row_and_invents_none():
     assert counts == {"placed": 3, "before": 1, "after": 1}
     assert np.flatnonzero(np.isfinite(out["gps_course"])).tolist() == [10, 31, 50]  # first row at or after
     G.t = np.array([0.101, 0.105])
-    with pytest.raises(NmeaFormatError, match="two GPS epochs fall on IMU row"):
+    with pytest.raises(LogFormatError, match=r"two samples fall on row 13 \(t = 0.11\)"):
         merge_onto_imu(imu, G)
 
 
