@@ -95,6 +95,7 @@ def cmd_estimate(args) -> int:
     log = read_log(args.log, needed, args.channel_map).without_truth()
     d = design_filter(args.method, p, latency=args.gps_latency)
     est = run_estimator(d, log)
+    _require_finite(args.log, est.t, {"beta": est["beta"], "yaw_rate": est["yaw_rate"]})
     cols = {"t": est.t}
     for name in OUTPUTS:
         v = est[name]
@@ -112,6 +113,7 @@ ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_st
 
 
 def _replay(args):
+    from .firmware.ecu import OUTPUT_NAMES
     from .firmware.export import ecu_from_design
     from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
     from .logio import read_log
@@ -121,7 +123,21 @@ def _replay(args):
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal)
     prog = ecu_program(d)
-    return d, log, U, prog.run(U), prog.backend
+    Y = prog.run(U)
+    _require_finite(args.log, log["t"], {name: Y[:, OUTPUT_NAMES.index(name)] for name in
+                                         ("beta", "yaw_rate", "steer_cmd", "yaw_moment_cmd")})
+    return d, log, U, Y, prog.backend
+
+
+def _require_finite(source, t, signals: dict) -> None:
+    """Refuse to write estimates or commands that stopped being numbers (a filter that diverged on the
+    log or on the vehicle's parameters), naming the first row."""
+    for name, v in signals.items():
+        bad = np.flatnonzero(~np.isfinite(v))
+        if len(bad):
+            k = int(bad[0])
+            raise EvstabError(f"{source}: row {k + 2} (t = {float(t[k])!r} s): the {name} estimate is not finite; "
+                              f"the filter diverged (check the log's units and the vehicle parameters)")
 
 
 def _estimate_designed(args) -> int:
