@@ -244,8 +244,12 @@ class LoopProgram:
                              f"({sorted(set(names) ^ set(self.names))})")
         return U, z0, param_vector(params, names)
 
-    def run(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray):
-        """Roll the loop out over ``U``; returns (truth Y, extra E) as samples x signals arrays."""
+    def run(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, final_state: bool = False):
+        """Roll the loop out over ``U``; returns (truth Y, extra E) as samples x signals arrays, and with
+        ``final_state`` the loop state after the last sample too (to continue a run block by block;
+        ``U``'s length must then be a multiple of :data:`CHUNK`, so no padded sample advances it)."""
+        if final_state and U.shape[0] % CHUNK:
+            raise ValueError(f"final_state needs a multiple of {CHUNK} samples, got {U.shape[0]}")
         n, nin = U.shape
         n_pad = -(-n // CHUNK) * CHUNK
         Up = np.empty((n_pad, nin))
@@ -267,6 +271,8 @@ class LoopProgram:
                 zs, ys, es = self.chunk(z, Up[s:s + CHUNK].T, pv, theta)
                 z = np.array(zs).ravel()
                 Y[s:s + CHUNK], E[s:s + CHUNK] = np.array(ys).T, np.array(es).T
+        if final_state:
+            return Y[:n], E[:n], z
         return Y[:n], E[:n]
 
 
