@@ -237,6 +237,23 @@ def test_standing_still_for_30_s_does_not_blow_up(method):
         assert e["gyro_bias"][29999] == pytest.approx(0.002, abs=2e-4)  # zero-rate update finds the bias
 
 
+@pytest.mark.parametrize("method", ["dakf", "kf-bias"])
+def test_a_car_spinning_on_the_spot_is_not_standing(method):
+    """Wheels at rest but the gyro reading 2 rad/s (a car spinning on the spot, as after a spin-out):
+    the zero-yaw-rate update must stay off, or the rotation goes into the bias estimate (it did: a
+    one-hour soak ended with yaw-rate estimates 245 deg/s off). The bias estimate stays within 1 mrad/s
+    of the 0.002 rad/s the quiet standstill found (measured 0.78 mrad/s: at the jump the standstill had
+    pinned the yaw rate's variance to 1e-6, so the first samples share the step with the bias); the
+    old rule moved it by the whole 2 rad/s."""
+    p = load_vehicle("compact-ev")
+    cols = _constant_log(15000, 0.0, gyro_bias=0.002)
+    cols["yaw_rate"][10000:] += 2.0
+    e = run_estimator(design_filter(method, p), cols)
+    assert e["gyro_bias"][9999] == pytest.approx(0.002, abs=2e-4)  # the quiet part found the bias
+    assert e["gyro_bias"][-1] == pytest.approx(0.002, abs=1e-3)  # the spin did not move it
+    assert e["yaw_rate"][-1] == pytest.approx(2.0, abs=0.01)  # the yaw rate is the gyro's, less the bias
+
+
 def test_estimators_never_read_truth():
     p = load_vehicle("compact-ev")
     r = simulate(p, "bicycle", step_steer(20.0, 0.02, duration=3.0))

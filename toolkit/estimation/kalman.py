@@ -6,7 +6,8 @@ One call advances one IMU sample:
    ``e^(A dt)`` (no matrix exponential per step; truncation error below 1e-9 for
    ``|A| dt < 0.05``, i.e. above ~1 m/s at 1 kHz) and predict;
 2. gyro update every sample (scalar, Joseph form);
-3. zero-yaw-rate pseudo-measurement at standstill (designs that have it);
+3. zero-yaw-rate pseudo-measurement at standstill (wheels at rest and the gyro quiet; designs
+   that have it);
 4. course update when a usable fix is present (>= 4 satellites, speed above
    ``gps_min_speed``): innovation wrapped to (-pi, pi], noise from HDOP and 1/speed
    (or constant), chi-square gate with recovery after ``max_rejects`` gated fixes,
@@ -162,7 +163,9 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 3. standstill: the yaw rate is zero
     if d.standstill_update:
         hs = _col(np.eye(n)[ir], o)
-        still = v < nz.standstill_speed  # 0/1 (a comparison: see continuous_model on if_else)
+        # 0/1 (comparisons: see continuous_model on if_else); wheels at rest and the gyro quiet
+        rate = gyro - x[d.index("gyro_bias")] if d.bias else gyro
+        still = (v < nz.standstill_speed) * (o.fabs(rate) < nz.standstill_rate_max)
         x, P, _, _ = scalar_update(x, P, hs, 0.0 - x[ir], nz.standstill_std**2, o, n, gate=still)
 
     # 4. course fix

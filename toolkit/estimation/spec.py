@@ -78,6 +78,10 @@ class NoiseSettings:
     standstill_speed: float = 0.2
     """Below this speed [m/s] the car is standing: yaw rate is zero (pseudo-measurement)."""
     standstill_std: float = 1e-3
+    standstill_rate_max: float = 0.05
+    """The car counts as standing only while the gyro, less the bias estimate, also reads below this
+    [rad/s]: a car spinning on the spot has wheels at rest, and forcing its yaw rate to zero would
+    push the whole rotation into the bias estimate."""
     min_speed: float = 2.0
     """Below this speed [m/s] the lateral model is held (beta, r, d frozen; psi from the gyro)."""
     gps_min_speed: float = 1.0
