@@ -12,10 +12,8 @@ samples; the plant may differ from what controller and estimator believe
 
 from __future__ import annotations
 
-import copy
 import ctypes
 import dataclasses
-import hashlib
 from dataclasses import dataclass
 
 import casadi as ca
@@ -31,8 +29,8 @@ from plants.disturbances import Disturbances, Friction, disturbance_profile
 from plants.maneuvers import Maneuver
 from plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
 
-from .compiled import (CFunction, build_step, compile_library, numeric_fields, param_vector, rk4_substeps,
-                       source_digest, symbolic_view)
+from .compiled import (CFunction, build_step, cache_key, compile_library, numeric_fields, param_vector,
+                       rk4_substeps, symbolic_view, with_fields)
 from .estimation import design_filter
 from .estimation.spec import FilterDesign, NoiseSettings
 from .estimation import kalman as kal_mod
@@ -73,14 +71,6 @@ class LoopSpec:
     n_sub: int
 
 
-def _with(obj, **values):
-    """A copy of a frozen dataclass with fields replaced without validation (casadi symbols)."""
-    c = copy.copy(obj)
-    for k, v in values.items():
-        object.__setattr__(c, k, v)
-    return c
-
-
 def _noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
     nz = draw_noise(cfg, seed, n)
     rows = [nz["steer"], nz["gyro"], nz["roll_gyro"], nz["accel"][0], nz["accel"][1], *nz["wheel"], nz["speed"],
@@ -103,10 +93,10 @@ def _build(spec: LoopSpec):
     thd = {k: th[i] for i, k in enumerate(THETA)}
     est = spec.estimator
     if est is not None:
-        est = _with(est, noise=_with(est.noise, q_beta=thd["q_beta"], q_yaw_rate=thd["q_yaw_rate"],
+        est = with_fields(est, noise=with_fields(est.noise, q_beta=thd["q_beta"], q_yaw_rate=thd["q_yaw_rate"],
                                      q_d1=thd["q_d1"], q_d2=thd["q_d2"]))
-    ctl = _with(spec.design, k_beta=thd["k_beta"], k_gamma=thd["k_gamma"])
-    sensors = _with(spec.sensors, gyro_bias=thd["gyro_bias"], gyro_scale_error=thd["gyro_scale_error"])
+    ctl = with_fields(spec.design, k_beta=thd["k_beta"], k_gamma=thd["k_gamma"])
+    sensors = with_fields(spec.sensors, gyro_bias=thd["gyro_bias"], gyro_scale_error=thd["gyro_scale_error"])
     lim = ActuatorLimits()
     nx, nt = len(model.states), len(TRUTH)
     ne = kal_mod.layout(est)["size"] if est is not None else 0
@@ -188,8 +178,7 @@ class LoopProgram:
     def __init__(self, spec: LoopSpec):
         self.spec = spec
         self.step, self.chunk, self.names, self.sizes, self.est, self.nin = _build(spec)
-        src = source_digest()
-        key = "loop_" + hashlib.sha256(repr((spec, ca.__version__, src, CHUNK, SLOTS)).encode()).hexdigest()[:20]
+        key = cache_key("loop", spec, CHUNK, SLOTS)
         lib = compile_library([self.chunk], key)
         self.cf = CFunction(ctypes.CDLL(str(lib)), "loop_chunk") if lib is not None else None
         self.model = get_plant(spec.plant)

@@ -119,6 +119,22 @@ def source_digest() -> str:
     return h.hexdigest()[:16]
 
 
+def cache_key(prefix: str, *parts) -> str:
+    """Compiled-cache key: ``prefix`` plus a digest of ``parts`` (their repr), the casadi version
+    and :func:`source_digest`."""
+    return prefix + "_" + hashlib.sha256(repr((parts, ca.__version__, source_digest())).encode()).hexdigest()[:20]
+
+
+def with_fields(obj, **values):
+    """A copy of a frozen dataclass with fields replaced without validation: for casadi symbols
+    (run-time inputs of a traced function), which validation cannot check."""
+    import copy
+    c = copy.copy(obj)
+    for k, v in values.items():
+        object.__setattr__(c, k, v)
+    return c
+
+
 def _cache_dir() -> Path:
     root = os.environ.get("EVSTAB_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "evstab")
     return Path(root)

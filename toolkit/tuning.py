@@ -30,7 +30,6 @@ the tuned design's worst case when it lies outside the set (a cutting-plane roun
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import multiprocessing as mp
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -42,7 +41,7 @@ import numpy as np
 from plants import TRUTH
 
 from . import closed_loop, sweep
-from .compiled import CFunction, compile_library, source_digest
+from .compiled import CFunction, cache_key, compile_library
 from .sweep import B_SCALE, E_SCALE, R_SCALE, U_WEIGHT, Case, DesignPoint, SweepConfig
 
 SIGMA_MIN = 0.01
@@ -85,8 +84,7 @@ class RolloutCost:
         self.n = int(round(sweep.MANEUVER_DURATION / cfg.dt))
         self.nz_max = cfg.base_design().nz_max
         self.fn = _cost_function(self.prog, self.n, self.nz_max)
-        src = source_digest()
-        key = "tune_" + hashlib.sha256(repr((cfg.spec(), self.n, ca.__version__, src)).encode()).hexdigest()[:20]
+        key = cache_key("tune", cfg.spec(), self.n)
         lib = compile_library([self.fn], key)
         self.cf = CFunction(ctypes.CDLL(str(lib)), "tune_cost") if lib is not None else None
 

@@ -9,7 +9,6 @@ Without a C compiler the same casadi function runs in casadi's virtual machine;
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -18,7 +17,7 @@ import numpy as np
 
 from plants.backend import CASADI, NUMPY
 
-from ..compiled import load_chunk_library, run_chunks, source_digest
+from ..compiled import cache_key, load_chunk_library, run_chunks
 from . import kalman, lob
 from .spec import FilterDesign
 
@@ -71,10 +70,8 @@ class CompiledFilter:
         self.backend = "numpy" if backend == "numpy" else "vm"
         self._step_fn = self._chunk_fn = None
         if backend in ("auto", "c"):
-            src = source_digest()
-            key = "est_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
             # a compiled filter loads without rebuilding the casadi graph
-            self._c = load_chunk_library(key, lambda: self.chunk_fn, "est_chunk", required=backend == "c")
+            self._c = load_chunk_library(cache_key("est", d, CHUNK), lambda: self.chunk_fn, "est_chunk", required=backend == "c")
             if self._c is not None:
                 self.backend = "c"
 

@@ -17,12 +17,13 @@ min_speed)`` for the controller (:meth:`EcuDesign.schedule_inputs`); the generat
 C does the same with its own table lookup.
 
 Calibration scalars (:meth:`EcuDesign.calibration`) are inputs of the traced step,
-so the C reads them from named ``static const`` data that the A2L describes.
+so the C reads them from named calibration data (``EVSTAB_CALIBRATION``, by default
+``static const volatile``) that the A2L describes.
 """
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,7 @@ from controllers.two_dof import TwoDofDesign, control_law
 from plants.backend import CASADI, NUMPY
 from plants.errors import ModelError
 
+from ..compiled import with_fields
 from ..estimation import kalman
 from ..estimation.spec import FilterDesign
 
@@ -137,11 +139,8 @@ class EcuDesign:
         for name in ("track_rear", "wheel_radius", "max_motor_torque"):
             p.require(name, model="firmware export")
         sched = schedule or SpeedSchedule.build(p)
-        ctl = copy.copy(ctl)
-        object.__setattr__(ctl, "schedule", sched)
-        object.__setattr__(ctl, "yaw_moment_max", float(ctl.nz_max))
-        filt = copy.copy(filt)
-        object.__setattr__(filt, "schedule", sched)
+        ctl = dataclasses.replace(ctl, schedule=sched, yaw_moment_max=float(ctl.nz_max))
+        filt = dataclasses.replace(filt, schedule=sched)
         return cls(filt, ctl, float(p.max_motor_torque), float(p.track_rear), float(p.wheel_radius))
 
     @property
@@ -214,8 +213,8 @@ class EcuDesign:
         by = {"controller": {}, "noise": {}, "ecu": {}}
         for c, v in zip(cal, values):
             by[c.owner][c.name] = v
-        noise = _with(self.filter.noise, **by["noise"])
-        return _with(self, filter=_with(self.filter, noise=noise), controller=_with(self.controller, **by["controller"]),
+        noise = with_fields(self.filter.noise, **by["noise"])
+        return with_fields(self, filter=with_fields(self.filter, noise=noise), controller=with_fields(self.controller, **by["controller"]),
                      **by["ecu"])
 
 
@@ -229,14 +228,6 @@ class _Rows:
         return self.rows
 
 
-def _with(obj, **values):
-    """A copy of a frozen dataclass with fields replaced without validation (casadi symbols)."""
-    c = copy.copy(obj)
-    for k, v in values.items():
-        object.__setattr__(c, k, v)
-    return c
-
-
 def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
     """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
 
@@ -246,8 +237,8 @@ def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
     """
     nr = len(ROWS)
     if sched is not None:
-        d = _with(d, filter=_with(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
-                  controller=_with(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
+        d = with_fields(d, filter=with_fields(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
+                  controller=with_fields(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
     lay = d.layout
     ne = lay["controller"]
     z_est, z_ctl = z[0:ne], z[ne:lay["size"]]

@@ -18,7 +18,6 @@ the previous period; default 0). ``*_true`` columns are never read.
 
 from __future__ import annotations
 
-import hashlib
 from functools import lru_cache
 
 import casadi as ca
@@ -26,7 +25,7 @@ import numpy as np
 
 from plants.backend import NUMPY
 
-from ..compiled import load_chunk_library, run_chunks, source_digest
+from ..compiled import cache_key, load_chunk_library, run_chunks
 from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
 
 CHUNK = 2000
@@ -81,9 +80,7 @@ class EcuProgram:
         self.backend = "numpy" if backend == "numpy" else "vm"
         self._chunk = None
         if backend in ("auto", "c"):
-            src = source_digest()
-            key = "ecu_" + hashlib.sha256(repr((d, ca.__version__, CHUNK, src)).encode()).hexdigest()[:20]
-            self._c = load_chunk_library(key, lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")
+            self._c = load_chunk_library(cache_key("ecu", d, CHUNK), lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")
             if self._c is not None:
                 self.backend = "c"
 
