@@ -91,21 +91,31 @@ def cmd_estimate(args) -> int:
     if args.design is not None:
         return _estimate_designed(args)
     p = load_vehicle(args.vehicle)
-    needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay")  # plus the schema's required columns
+    from .estimation.monitor import FLAGS
+
+    # plus the schema's required columns; the monitor reads ax, the GPS columns and gps_time_fault
+    needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault")
     log = read_log(args.log, needed, args.channel_map).without_truth()
     d = design_filter(args.method, p, latency=args.gps_latency)
-    est = run_estimator(d, log)
+    est = run_estimator(d, log, monitor=not args.no_monitor)
     _require_finite(args.log, est.t, {"beta": est["beta"], "yaw_rate": est["yaw_rate"]})
     cols = {"t": est.t}
     for name in OUTPUTS:
         v = est[name]
-        if np.any(np.isfinite(v)):  # a method's columns only
+        if name != "bias_alarm" and np.any(np.isfinite(v)):  # a method's columns only (the alarm: a flag)
             cols[name] = v
+    flagged = {}
+    if not args.no_monitor:
+        for name in FLAGS:
+            cols[name] = est[name]
+            flagged[name] = int(est[name].sum())
     write_log_table(args.out, cols)
     fixes = int(np.isfinite(log["gps_course"]).sum())
     used = int(np.nansum(est["gps_used"]))
+    faults = ", ".join(f"{k[6:]} {v}" for k, v in flagged.items() if v)
     print(f"{args.method} on {args.log}: {len(est.t)} samples, {fixes} GPS fixes, {used} used "
-          f"({est.backend} backend) -> {args.out}")
+          f"({est.backend} backend)" + (f"; rows flagged: {faults}" if faults else
+                                        ("; no sensor fault flagged" if flagged else "")) + f" -> {args.out}")
     return 0
 
 
@@ -187,7 +197,9 @@ def cmd_convert(args) -> int:
         cols = {k: v for k, v in imu.columns.items() if not k.startswith("gps_")}
         merged, counts = merge_onto_imu(cols, gps, args.time_offset)
         what = (f"{args.nmea} + {args.imu}: {len(gps)} GPS epochs, {counts['placed']} placed on {len(cols['t'])} IMU "
-                f"rows, {counts['before']} before and {counts['after']} after the IMU log dropped")
+                f"rows, {counts['before']} before and {counts['after']} after the IMU log dropped"
+                + (f", {counts['time_backwards']} with a time tag going backwards dropped (flagged in column "
+                   f"gps_time_fault)" if counts["time_backwards"] else ""))
     else:
         if args.imu is not None or args.time_offset != 0.0:
             raise EvstabError("--imu and --time-offset go with --nmea")
@@ -294,6 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--method", choices=METHODS, default="dakf")
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
     sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
+    sp.add_argument("--no-monitor", action="store_true",
+                    help="feed the log to the filter as it is: no sensor-fault screening, no fault_* columns")
     sp.add_argument("--out", required=True, help="estimate CSV to write")
     sp.set_defaults(func=cmd_estimate)
     sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")

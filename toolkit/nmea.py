@@ -57,6 +57,8 @@ class GpsEpochs:
     """[rad] dual-antenna heading, yaw sense, continuous."""
     source: str
     date0: _dt.date | None
+    time_fault: np.ndarray | None = None
+    """True for an epoch whose time tag went backwards (no course; ``t`` is the previous epoch's)."""
 
     def __len__(self) -> int:
         return len(self.t)
@@ -96,6 +98,7 @@ def read_nmea(path) -> GpsEpochs:
         raise NmeaFormatError(f"{path}: byte {exc.start}: not ASCII text (NMEA 0183 is ASCII)") from None
     epochs: list[dict] = []
     cur: dict | None = None
+    last_good: dict | None = None
     date = date0 = None
     pending_days = 0  # whole days since date0 for epochs whose sentence carried no date
     for n, raw in enumerate(text.splitlines(), start=1):
@@ -126,14 +129,16 @@ def read_nmea(path) -> GpsEpochs:
             secs = ts.hour * 3600 + ts.minute * 60 + ts.second + ts.microsecond * 1e-6
             days = (date - date0).days if (date is not None and date0 is not None) else pending_days
             t = days * 86400 + secs
-            if cur is not None and epochs and cur["t"] > t + 43200:  # midnight passed without a date (GGA only)
+            if last_good is not None and last_good["t"] > t + 43200:  # midnight passed without a date (GGA only)
                 pending_days += 1
                 t += 86400
-            if cur is None or abs(t - cur["t"]) > 1e-6:
-                if cur is not None and t < cur["t"]:
-                    raise NmeaFormatError(f"{where}: time {ts.isoformat()} is before the previous epoch's; "
-                                          f"epochs must be in time order")
-                cur = {"t": t, "valid": True, "line": n}
+            if cur is None or abs(t - cur["raw"]) > 1e-6:
+                if last_good is not None and t < last_good["t"]:
+                    # the receiver's time went backwards: this epoch (and its sentences) is dropped,
+                    # and the merge flags the row where it arrived (column gps_time_fault)
+                    cur = {"t": last_good["t"], "raw": t, "valid": False, "time_fault": True, "line": n}
+                else:
+                    cur = last_good = {"t": t, "raw": t, "valid": True, "line": n}
                 epochs.append(cur)
         elif cur is None:
             continue  # sentences before the first time tag belong to no epoch
@@ -175,21 +180,66 @@ def read_nmea(path) -> GpsEpochs:
         if len(bad):
             e = epochs[bad[0]]
             raise NmeaFormatError(f"{path}: line {e['line']}: {name} {v[bad[0]]!r} outside [{lo:g}, {hi:g}]")
+    fault = np.array([e.get("time_fault", False) for e in epochs])
     return GpsEpochs(col["t"], yaw_sense(cog), col["speed"], col["hdop"], col["sats"], yaw_sense(col["hdt"]),
-                     str(path), date0)
+                     str(path), date0, fault)
+
+
+def write_nmea(path, t, course, speed, *, hdop=None, sats=None, start: float = 12 * 3600.0,
+               date: str = "010126") -> int:
+    """Write GPS fixes (schema units: course in the yaw sense [rad], speed [m/s]) as NMEA 0183 RMC +
+    GGA sentences through pynmea2, one epoch per finite course, receiver time ``start + t`` [s of
+    the day, UTC] on ``date`` (DDMMYY; a drive must not cross midnight). For simulated logs
+    (studies, tests). Written atomically; returns the number of epochs."""
+    import pynmea2
+
+    from .logio import atomic_write
+
+    t, course, speed = (np.asarray(a, float) for a in (t, course, speed))
+    rows = np.flatnonzero(np.isfinite(course))
+    lines = []
+    for k in rows:
+        ts = round(start + float(t[k]), 2)
+        if not 0 <= ts < 86400:
+            raise ValueError(f"write_nmea: fix at t = {t[k]!r} s falls outside the day of 'start'")
+        h, rem = divmod(ts, 3600)
+        m, sec = divmod(rem, 60)
+        hms = f"{int(h):02d}{int(m):02d}{sec:05.2f}"
+        cog = (90.0 - math.degrees(float(course[k]))) % 360.0
+        knots = float(speed[k]) / KNOT if np.isfinite(speed[k]) else 0.0
+        hd = 1.0 if hdop is None or not np.isfinite(hdop[k]) else float(hdop[k])
+        ns = 8 if sats is None or not np.isfinite(sats[k]) else int(sats[k])
+        lines.append(str(pynmea2.RMC("GP", "RMC", (hms, "A", "4807.038", "N", "01131.000", "E", f"{knots:.3f}",
+                                                 f"{cog:.3f}", date, "", ""))))
+        lines.append(str(pynmea2.GGA("GP", "GGA", (hms, "4807.038", "N", "01131.000", "E", "1", f"{ns:02d}",
+                                                 f"{hd:.1f}", "545.4", "M", "46.9", "M", "", ""))))
+    atomic_write(path, lambda fh: fh.write("\r\n".join(lines) + "\r\n"))
+    return len(rows)
 
 
 def merge_onto_imu(imu: dict, gps: GpsEpochs, time_offset: float = 0.0) -> tuple[dict, dict]:
     """The GPS epochs placed on the IMU time base (:func:`toolkit.logio.place_on_rows`, with
     ``t_gps - time_offset``). Returns the merged columns and the counts (``placed``, and
-    ``before``/``after``: epochs outside the IMU log, dropped)."""
+    ``before``/``after``: epochs outside the IMU log, dropped; ``time_backwards``: epochs whose
+    time tag went backwards, dropped and flagged in the column ``gps_time_fault`` on the row of
+    the epoch before them, where they arrived)."""
     from .logio import place_on_rows
     t = np.asarray(imu["t"], float)
-    rows, inside, counts = place_on_rows(t, gps.t - time_offset, gps.source)
+    fault = getattr(gps, "time_fault", None)
+    fault = np.zeros(len(gps.t), bool) if fault is None else np.asarray(fault, bool)
+    good = ~fault
+    rows, inside, counts = place_on_rows(t, gps.t[good] - time_offset, gps.source)
     out = dict(imu)
     for name, values in (("gps_course", gps.course), ("gps_speed", gps.speed), ("gps_hdop", gps.hdop),
                          ("gps_sats", gps.sats), ("gps_heading", gps.heading)):
         col = np.full(len(t), math.nan)
-        col[rows] = values[inside]
+        col[rows] = values[good][inside]
         out[name] = col
+    counts["time_backwards"] = int(fault.sum())
+    if fault.any():
+        flag = np.zeros(len(t))
+        k = np.searchsorted(t, gps.t[fault] - time_offset - 1e-9 * max(1.0, float(np.max(np.abs(t)))))
+        k = k[(k < len(t)) & (gps.t[fault] - time_offset >= t[0] - 1e-9)]
+        flag[k] = 1.0
+        out["gps_time_fault"] = flag
     return out, counts

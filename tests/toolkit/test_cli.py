@@ -73,9 +73,12 @@ def test_estimate_writes_method_columns(tmp_path):
                  "--out", str(log)]) == 0
     assert main(["estimate", str(log), "--vehicle", "micro-ev", "--out", str(est)]) == 0
     header = est.read_text().splitlines()[0].split(",")
-    assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis"]
+    flags = ["fault_gps_spike", "fault_gps_sats", "fault_gps_frozen", "fault_gps_time", "fault_gyro_stuck",
+             "fault_gyro_bias", "fault_speed_dropout"]
+    assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis"] + flags
     assert main(["estimate", str(log), "--vehicle", "micro-ev", "--method", "kf", "--out", str(est)]) == 0
-    assert est.read_text().splitlines()[0] == "t,beta,yaw_rate,yaw,beta_std,gps_used,nis"
+    assert est.read_text().splitlines()[0] == ",".join(["t", "beta", "yaw_rate", "yaw", "beta_std", "gps_used",
+                                                        "nis"] + flags)
 
 
 def test_estimate_bad_log_exit_2_names_row_and_column(tmp_path, capsys):

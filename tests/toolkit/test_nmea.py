@@ -87,11 +87,28 @@ def test_bad_nmea_names_the_line(tmp_path, text, expect):
         read_nmea(f)
 
 
-def test_time_going_backwards_and_absurd_values_are_refused(tmp_path):
+def test_an_epoch_whose_time_goes_backwards_is_dropped_and_flagged(tmp_path):
+    """Epochs at 10.0, 10.4, then one tagged 10.2 (with its VTG/GSA), then 10.6: the 10.2 epoch has no
+    course, sits at 10.4 (where it arrived), is marked; after merging, 3 fixes and one flag on the
+    10.4 fix's row; ``evstab estimate`` carries the flag as fault_gps_time."""
     f = tmp_path / "b.nmea"
-    f.write_text("\n".join(_epoch(10.4, 10.0, 20.0, 1.0, 8) + _epoch(10.2, 10.0, 20.0, 1.0, 8)))
-    with pytest.raises(NmeaFormatError, match="line 5: time .* before the previous"):
-        read_nmea(f)
+    f.write_text("\n".join(_epoch(10.0, 10.0, 20.0, 1.0, 8) + _epoch(10.4, 10.0, 20.0, 1.0, 8) +
+                           _epoch(10.2, 50.0, 20.0, 1.0, 8) + _epoch(10.6, 10.0, 20.0, 1.0, 8)))
+    g = read_nmea(f)
+    assert list(g.time_fault) == [False, False, True, False]
+    np.testing.assert_allclose(g.t, [10.0, 10.4, 10.4, 10.6], atol=1e-9)
+    assert np.isnan(g.course[2]) and np.isfinite(g.course[[0, 1, 3]]).all()
+    imu = {"t": np.arange(9.9, 10.8, 0.01)}
+    merged, counts = merge_onto_imu(imu, g)
+    assert counts["time_backwards"] == 1 and counts["placed"] == 3
+    assert np.isfinite(merged["gps_course"]).sum() == 3
+    flagged = np.flatnonzero(merged["gps_time_fault"])
+    np.testing.assert_allclose(imu["t"][flagged], [10.4], atol=1e-9)
+    assert np.isfinite(merged["gps_course"][flagged]).all()  # the good 10.4 fix stays on its row
+
+
+def test_absurd_values_are_refused(tmp_path):
+    f = tmp_path / "b.nmea"
     f.write_text("\n".join(_epoch(10.0, 10.0, 2000.0, 1.0, 8)))
     with pytest.raises(NmeaFormatError, match=r"line 1: speed .* outside"):
         read_nmea(f)
@@ -109,7 +126,7 @@ def test_merge_places_each_epoch_on_one_imu_row_and_invents_none():
         source = "g.nmea"
 
     out, counts = merge_onto_imu(imu, G)
-    assert counts == {"placed": 3, "before": 1, "after": 1}
+    assert counts == {"placed": 3, "before": 1, "after": 1, "time_backwards": 0}
     assert np.flatnonzero(np.isfinite(out["gps_course"])).tolist() == [10, 31, 50]  # first row at or after
     G.t = np.array([0.101, 0.105])
     with pytest.raises(LogFormatError, match=r"two samples fall on row 13 \(t = 0.11\)"):

@@ -39,6 +39,6 @@ class EstimatorComponent:
         u = np.array([signals["dt"], signals["speed"], signals["steer"], signals.get("yaw_moment", 0.0),
                       signals["yaw_rate"], float(fix), course if fix else 0.0,
                       hdop if np.isfinite(hdop) else 1.0, sats if np.isfinite(sats) else 99.0,
-                      signals.get("ay", 0.0)])
+                      signals.get("ay", 0.0), signals.get("gyro_ok", 1.0)])
         zn, y = self._fn(state, u)
         return np.array(zn).ravel(), dict(zip(kalman.OUTPUTS, np.array(y).ravel()))

@@ -10,10 +10,22 @@ One call advances one IMU sample:
    that have it);
 4. course update when a usable fix is present (>= 4 satellites, speed above
    ``gps_min_speed``): innovation wrapped to (-pi, pi], noise from HDOP and 1/speed
-   (or constant), chi-square gate with recovery after ``max_rejects`` gated fixes,
-   optional latency compensation (the fix is compared with the course predicted
-   ``latency`` s earlier); the first usable fix initialises the heading;
+   (or constant), chi-square gate, optional latency compensation (the fix is compared
+   with the course predicted ``latency`` s earlier); the first usable fix initialises
+   the heading, and so does a fix after ``max_rejects`` gated ones in a row (the heading
+   was lost: a spin, a stuck gyro; see below);
+   with a gyro-bias state, a two-sided CUSUM on the normalised innovations of accepted
+   fixes watches for a gyro bias step and, when it alarms, reopens the bias variance;
 5. seed 004's inter-sample residual prediction between fixes (``amrkf``).
+
+Sensor faults: the optional 11th input ``gyro_ok`` (default 1) gates the gyro update
+(0 while a monitor has found the gyro stuck: the yaw rate then comes from the model
+and the course fixes). Why a re-lock initialises the heading instead of accepting the
+fix: ``max_rejects`` consecutive fixes far outside their expected spread mean the
+heading estimate is lost (sideslip is physically bounded, heading is not); an ordinary
+update would hand part of a possibly huge innovation to the sideslip and the
+disturbances, and the sideslip-heading split is only slowly observable (the soak found
+this: sideslip errors of 40-50 deg for a minute after a spin).
 
 The filter state is one flat vector (``x``, ``P`` column-major, counters, the
 residual-prediction memory, the latency buffer) so the same step runs in a numpy
@@ -27,8 +39,13 @@ import numpy as np
 from plants.backend import CASADI, NUMPY
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
-INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay")
-OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis")
+INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay", "gyro_ok")
+OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis", "bias_alarm")
+
+
+def watches_bias(d: FilterDesign) -> bool:
+    """Whether the design runs the gyro-bias-step CUSUM (a bias state and gated fixes)."""
+    return bool(d.bias and d.gating)
 
 
 def layout(d: FilterDesign) -> dict:
@@ -36,7 +53,8 @@ def layout(d: FilterDesign) -> dict:
     n, nb = d.n, d.latency_samples
     off = {"x": 0, "P": n, "rejects": n + n * n, "eps": n + n * n + 1, "init": n + n * n + 2,
            "gain": n + n * n + 3}
-    off["buf"] = off["gain"] + n
+    off["cusum"] = off["gain"] + n
+    off["buf"] = off["cusum"] + (2 if watches_bias(d) else 0)
     off["size"] = off["buf"] + nb
     return off
 
@@ -138,6 +156,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     rejects, eps, init = z[lay["rejects"]], z[lay["eps"]], z[lay["init"]]
     gain = z[lay["gain"]:lay["gain"] + n]
     dt, v, steer, nzm, gyro, fix, course, hdop, sats = (u[i] for i in range(9))
+    gyro_ok = u[10] if _length(u, o) > 10 else None  # None: always working (callers with 10 inputs)
     ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
 
     # 1. predict with the model rediscretised at this speed
@@ -158,14 +177,18 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
 
     # 2. gyro, every sample
     hg = _col(gyro_row(d), o)
-    x, P, _, _ = scalar_update(x, P, hg, gyro - _dot(hg, x, o), nz.gyro_std**2, o, n)
+    x, P, _, _ = scalar_update(x, P, hg, gyro - _dot(hg, x, o), nz.gyro_std**2, o, n,
+                               gate=gyro_ok)
 
     # 3. standstill: the yaw rate is zero
     if d.standstill_update:
         hs = _col(np.eye(n)[ir], o)
         # 0/1 (comparisons: see continuous_model on if_else); wheels at rest and the gyro quiet
         rate = gyro - x[d.index("gyro_bias")] if d.bias else gyro
-        still = (v < nz.standstill_speed) * (o.fabs(rate) < nz.standstill_rate_max)
+        quiet = o.fabs(rate) < nz.standstill_rate_max
+        if gyro_ok is not None:  # without a working gyro the wheels alone say the car stands
+            quiet = gyro_ok * quiet + (1.0 - gyro_ok)
+        still = (v < nz.standstill_speed) * quiet
         x, P, _, _ = scalar_update(x, P, hs, 0.0 - x[ir], nz.standstill_std**2, o, n, gate=still)
 
     # 4. course fix
@@ -192,25 +215,36 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         nis = innov * innov / S
         usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
         if d.gating:
-            accept = usable * o.if_else(nis < nz.gate, 1.0, o.if_else(rejects >= nz.max_rejects, 1.0, 0.0))
-            rejects = o.if_else(accept > 0.5, 0.0, o.if_else(usable > 0.5, rejects + 1.0, rejects))
+            inside = nis < nz.gate
+            accept = usable * inside
+            # max_rejects gated fixes in a row and this one gated too: the heading is lost, re-lock
+            relock = usable * (1.0 - inside) * (rejects >= nz.max_rejects)
+            rejects = o.if_else(accept + relock > 0.5, 0.0, o.if_else(usable > 0.5, rejects + 1.0, rejects))
         else:
-            accept = usable
+            accept, relock = usable, 0.0
         acc = accept > 0.5
         # the first usable fix initialises the heading: yaw takes the whole innovation, its
-        # variance becomes the fix's (no part of a possibly huge heading error reaches beta)
-        first = (usable > 0.5) * (init < 0.5)
+        # variance becomes the fix's (no part of a possibly huge heading error reaches beta);
+        # a re-lock does the same
+        first = o.fmax((usable > 0.5) * (init < 0.5), relock)
         ey = _col(np.eye(n)[iy], o)
         x_first = x + ey * innov
         keep = _col(1.0 - np.eye(n)[iy], o)
         P_first = P * o.outer(keep, keep) + o.outer(ey, ey) * r_c
         x, P = o.if_else(acc, xc, x), o.if_else(acc, Pc, P)
         x, P = o.if_else(first > 0.5, x_first, x), o.if_else(first > 0.5, P_first, P)
+        if watches_bias(d):
+            calm = (o.fabs(gyro - x[d.index("gyro_bias")]) < nz.bias_cusum_rate_max) * \
+                (o.fabs(u[9]) < nz.bias_cusum_ay_max)
+            x, P, cusum, alarm = _bias_watch(d, z[lay["cusum"]:lay["cusum"] + 2], innov / o.sqrt(S),
+                                             accept * calm, relock, x, P, o)
         init = o.fmax(init, usable)
 
     else:  # no fix on this sample: nothing of the course update happens
         acc, first, usable = False, 0.0 * v, 0.0 * v
         accept, nis, K = 0.0 * v, 0.0 * v, gain
+        if watches_bias(d):
+            cusum, alarm = z[lay["cusum"]:lay["cusum"] + 2], 0.0 * v
 
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
@@ -225,6 +259,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
     parts = [x, o.flatten(P), o.stack([rejects, eps, init]), gain]
+    if watches_bias(d):
+        parts.append(cusum)
     if nb > 0:
         parts.append(buf_next)
     z_next = o.concat(parts)
@@ -236,8 +272,34 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         x[d.index("d2")] if "d2" in d.states else zero + nan,
         x[d.index("gyro_bias")] if d.bias else zero + nan,
         o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
+        alarm if watches_bias(d) else zero,
     ])
     return z_next, y
+
+
+def _length(u, o):
+    return u.numel() if o is CASADI else len(u)
+
+
+def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, x, P, o):
+    """Two-sided CUSUM on the normalised innovations ``nu`` of accepted fixes (N(0, 1) while
+    the model holds): ``g+ = max(0, g+ + nu - k)``, ``g- = max(0, g- - nu - k)``. A gyro bias
+    step makes the heading drift one way between fixes, so the innovations keep one sign;
+    when either sum passes ``h`` the bias variance is raised to at least its initial value
+    (the filter relearns the bias in seconds instead of minutes; raising a diagonal entry
+    keeps ``P`` positive definite) and both sums restart, as they do on a re-lock.
+    Returns ``(x, P, cusum_next, alarm)``."""
+    nz, n = d.noise, d.n
+    k, h = nz.bias_cusum_k, nz.bias_cusum_h
+    gp = o.fmax(cusum[0] + (nu - k) * accept, 0.0)
+    gm = o.fmax(cusum[1] + (-nu - k) * accept, 0.0)
+    alarm = o.fmax(gp > h, gm > h) * float(h > 0)
+    ib = d.index("gyro_bias")
+    eb = _col(np.eye(n)[ib], o)
+    P = P + o.outer(eb, eb) * (alarm * o.fmax(float(d.initial_covariance()[ib, ib]) - P[ib, ib], 0.0))
+    keep = (1.0 - alarm) * (1.0 - relock)
+    cusum_next = o.stack([gp * keep, gm * keep])
+    return x, P, cusum_next, alarm
 
 
 def _propagate(E, P, o, n):

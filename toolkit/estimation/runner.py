@@ -116,8 +116,9 @@ def compiled_filter(d: FilterDesign, backend: str = "auto") -> CompiledFilter:
 
 
 def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=None, gps_hdop=None, gps_sats=None,
-                        ay=None, dt0: float = 1e-3) -> np.ndarray:
-    """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable."""
+                        ay=None, gyro_ok=None, dt0: float = 1e-3) -> np.ndarray:
+    """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable;
+    ``gyro_ok`` (0/1 per sample, e.g. from :mod:`toolkit.estimation.monitor`) defaults to a working gyro."""
     n = len(t)
     U = np.zeros((n, len(kalman.INPUTS)))
     dt = np.empty(n)
@@ -132,20 +133,30 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     U[:, 7] = 1.0 if gps_hdop is None else np.where(np.isfinite(gps_hdop), gps_hdop, 1.0)
     U[:, 8] = 99.0 if gps_sats is None else np.where(np.isfinite(gps_sats), gps_sats, 99.0)
     U[:, 9] = 0.0 if ay is None else np.nan_to_num(ay)
+    U[:, 10] = 1.0 if gyro_ok is None else np.asarray(gyro_ok, float)
     return U
 
 
-def run_estimator(d: FilterDesign, log, backend: str = "auto") -> Estimate:
+def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) -> Estimate:
     """Run design ``d`` over a drive log (:class:`toolkit.logio.DriveLog` or a mapping of columns).
 
-    ``*_true`` columns are never read.
+    ``*_true`` columns are never read. With ``monitor`` (True or a
+    :class:`toolkit.estimation.monitor.MonitorSettings`) the log is screened for sensor
+    faults first (:mod:`toolkit.estimation.monitor`): the filter gets the cleaned inputs
+    and the estimate carries the ``fault_*`` flag columns.
     """
     cols = {k: np.asarray(v, float) for k, v in (log.columns.items() if hasattr(log, "columns") else log.items())
             if not k.endswith("_true")}
+    screened = None
+    if monitor:
+        from .monitor import MonitorSettings, screen
+        screened = screen(cols, monitor if isinstance(monitor, MonitorSettings) else None)
+        cols = screened.columns
     get = cols.get
     U = inputs_from_columns(cols["t"], cols["speed"], cols["steer"], cols["yaw_rate"], cols["gps_course"],
                             yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
-                            ay=get("ay"), dt0=d.dt_nominal)
+                            ay=get("ay"), gyro_ok=None if screened is None else screened.gyro_ok,
+                            dt0=d.dt_nominal)
     cf = compiled_filter(d, backend)
     if d.method == "lob":
         z0 = lob.initial_state(d)
@@ -153,4 +164,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto") -> Estimate:
         z0 = kalman.initial_state(d, 0.0, float(U[0, 4]))
     Y = cf.run(U, z0)
     out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}
+    if screened is not None:
+        from .monitor import estimate_flags
+        out.update(estimate_flags(screened, out, d.noise.gate))
     return Estimate(cols["t"], out, d.method, cf.backend)

@@ -88,7 +88,21 @@ class NoiseSettings:
     """Course fixes below this ground speed [m/s] are not used."""
     gate: float = CHI2_1DOF_999
     max_rejects: int = 10
-    """After this many consecutive gated fixes the next one is accepted (recovery)."""
+    """After this many consecutive gated fixes a gated one re-initialises the heading (re-lock)."""
+    bias_cusum_k: float = 0.5
+    """Allowance of the gyro-bias-step CUSUM on normalised course innovations (half the shift, in
+    standard deviations, it is tuned to find: 1)."""
+    bias_cusum_h: float = 10.0
+    """Alarm threshold of that CUSUM (0 = off). With k = 0.5 and white N(0, 1) innovations the mean
+    run to a false alarm is ~1.4e5 fixes per side (Siegmund's approximation; 4 h at 5 Hz each side);
+    a 1-sigma shift is found after ~20 fixes."""
+    bias_cusum_rate_max: float = 0.15
+    """The CUSUM reads only fixes taken while the gyro, less the bias estimate, reads below this
+    [rad/s] and ``|ay|`` below ``bias_cusum_ay_max``: in hard cornering and slides the linear model's
+    innovations keep one sign for reasons other than the gyro (the soak found a spin reopening the
+    bias again and again until the bias estimate was 100 deg/s off)."""
+    bias_cusum_ay_max: float = 2.0
+    """[m/s^2], see ``bias_cusum_rate_max``."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
