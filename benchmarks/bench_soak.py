@@ -48,7 +48,7 @@ if BLOCK % CHUNK:
     raise SystemExit(f"bench_soak: BLOCK must be a multiple of the loop's chunk ({CHUNK})")
 
 
-def drive(minutes: float, seed: int, p) -> tuple:
+def drive(minutes: float, seed: int, p, limit: bool = False) -> tuple:
     """Speed reference, driver steer and GPS fix mask for the whole drive; also the segment log."""
     rng = np.random.default_rng(seed)
     n = int(round(minutes * 60 / DT))
@@ -68,8 +68,8 @@ def drive(minutes: float, seed: int, p) -> tuple:
         ay = rng.uniform(1, 4)
         # the demand at the segment's higher speed: a weave asked for at the speed being braked to
         # would ask a car that is still faster for far more than 4 m/s^2 (the first version did, and
-        # spun the car mid-brake)
-        vv = max(v, target, 3.0)
+        # spun the car mid-brake; --limit keeps that drive)
+        vv = np.maximum(prof, 3.0) if limit else max(v, target, 3.0)
         amp = np.minimum(ay * L * (1 + K * vv**2) / vv**2, 0.3) * rng.choice([-1, 1])
         t0 = ramp + rng.uniform(0, max(hold - 5, 0.1))
         if kind == "lane-change":
@@ -104,12 +104,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--limit", action="store_true",
+                    help="the first version's drive: weave demand at the reference speed while braking (seed 1 "
+                         "spins the car at t = 2432 s); reported, not accepted")
     args = ap.parse_args()
     p = load_vehicle("compact-ev")
     sensors = SensorConfig()
     spec = loop_spec(p, sensors=sensors, dt=DT)
     prog = program(spec)
-    speed, steer, fix, outages, segments = drive(args.minutes, args.seed, p)
+    speed, steer, fix, outages, segments = drive(args.minutes, args.seed, p, args.limit)
     n = len(speed) // BLOCK * BLOCK
     est = prog.est
     lay = kalman.layout(est)
@@ -176,12 +179,20 @@ def main() -> None:
                   f"{np.sqrt(np.mean(be[m] ** 2)):.3f} deg, max {np.abs(be[m]).max():.3f} deg")
 
 
+    if len(spin):
+        t_s = spin[-1] * DT
+        for a, b in ((0, 30), (30, 120), (120, 1e9)):
+            m = (np.arange(len(be)) * DT >= t_s + a) & (np.arange(len(be)) * DT < t_s + b) & (vx * 3.6 > BOUND_SPEED)
+            if m.any():
+                print(f"  after the last slide beyond 20 deg (t = {t_s:.1f} s), {a}-{b:g} s later above "
+                      f"{BOUND_SPEED:.0f} km/h: sideslip error RMS {np.sqrt(np.mean(be[m] ** 2)):.3f} deg, max "
+                      f"{np.abs(be[m]).max():.3f} deg")
     fast = vx * 3.6 > BOUND_SPEED
     beta_max, rate_max = float(np.abs(be[fast]).max()), float(np.abs(re).max())
     ok = beta_max <= BETA_BOUND and rate_max <= RATE_BOUND
     print(f"  acceptance: sideslip error above {BOUND_SPEED:.0f} km/h max {beta_max:.2f} deg (bound {BETA_BOUND}), "
           f"yaw-rate error max {rate_max:.2f} deg/s (bound {RATE_BOUND}): {'PASS' if ok else 'FAIL'}")
-    if not ok:
+    if not ok and not args.limit:
         raise SystemExit(1)
 
 

@@ -81,7 +81,7 @@ def test_each_fault_is_flagged_on_its_rows_and_screened_out(drive, fault, flag):
     assert _beta_err_max(est, cols) <= 1.2 * _beta_err_max(clean, cols)
     if isinstance(fault, (F.FrozenGps, F.GyroStuck, F.WheelSpeedDropout)):
         # ... and these three are what the screening is for: unscreened, the error is many times larger
-        # (measured 15x, 15x and 130x on the 90 s drive of studies.sensor_faults)
+        # (measured 16x, 17x and 128x on the 90 s drive of studies.sensor_faults)
         raw = run_estimator(d, faulty)
         assert _beta_err_max(raw, cols) > 4 * _beta_err_max(est, cols)
 
