@@ -142,6 +142,28 @@ def constant_radius(speed: float, radius: float = 40.0, *, laps: float = 1.25, l
     return Maneuver("constant-radius", speed, duration, path=path, events={"radius": radius})
 
 
+def two_half_turns(speed: float, radius: float = 60.0, straight: float = 150.0, *,
+                   lead_in: float = 50.0) -> Maneuver:
+    """Seed 001's test track: two 180-degree constant-radius turns (left) joined by straights, driver-followed.
+
+    A lead-in straight, a half circle of ``radius``, a straight of ``straight`` m back the
+    other way, the second half circle, and the first ``lead_in`` m of straight again.
+    """
+    if radius <= 0 or straight <= 0 or lead_in <= 0:
+        raise ManeuverError(f"two-half-turns: radius, straight and lead-in must be > 0 m, got {radius!r}, "
+                            f"{straight!r}, {lead_in!r}")
+    ds = 0.25
+    a = np.arange(0.0, np.pi, ds / radius)
+    xs = [np.arange(-lead_in, 0.0, ds), radius * np.sin(a), -np.arange(0.0, straight, ds),
+          -straight - radius * np.sin(a), -straight + np.arange(0.0, straight + lead_in, ds)]
+    ys = [np.zeros(int(np.ceil(lead_in / ds))), radius * (1.0 - np.cos(a)), np.full(int(np.ceil(straight / ds)),
+                                                                                     2 * radius),
+          radius * (1.0 + np.cos(a)), np.zeros(int(np.ceil((straight + lead_in) / ds)))]
+    path = Path(np.concatenate(xs), np.concatenate(ys))
+    duration = (2 * np.pi * radius + 2 * straight + lead_in) / max(speed, 0.5)
+    return Maneuver("two-half-turns", speed, duration, path=path, events={"radius": radius})
+
+
 def _blend(x, x0, length, y0, y1):
     return y0 + (y1 - y0) * 0.5 * (1.0 - np.cos(np.pi * np.clip((x - x0) / length, 0.0, 1.0)))
 

@@ -96,13 +96,18 @@ def cmd_estimate(args) -> int:
     # plus the schema's required columns; the monitor reads ax, the GPS columns and gps_time_fault
     needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault")
     log = read_log(args.log, needed, args.channel_map).without_truth()
+    from .estimation.spec import METHOD_COLUMNS
+    lacks = [c for c in METHOD_COLUMNS.get(args.method, ()) if not np.any(np.isfinite(log.columns.get(c, [np.nan])))]
+    if lacks:
+        raise EvstabError(f"{args.log}: method '{args.method}' needs column(s) {', '.join(lacks)}, which the log "
+                          f"lacks (or has no value in)")
     d = design_filter(args.method, p, latency=args.gps_latency)
     est = run_estimator(d, log, monitor=not args.no_monitor)
     _require_finite(args.log, est.t, {"beta": est["beta"], "yaw_rate": est["yaw_rate"]})
     cols = {"t": est.t}
     for name in OUTPUTS:
         v = est[name]
-        if name != "bias_alarm" and np.any(np.isfinite(v)):  # a method's columns only (the alarm: a flag)
+        if name not in ("bias_alarm", "gyro_resid") and np.any(np.isfinite(v)):  # a method's columns only
             cols[name] = v
     flagged = {}
     if not args.no_monitor:
@@ -116,6 +121,9 @@ def cmd_estimate(args) -> int:
     print(f"{args.method} on {args.log}: {len(est.t)} samples, {fixes} GPS fixes, {used} used "
           f"({est.backend} backend)" + (f"; rows flagged: {faults}" if faults else
                                         ("; no sensor fault flagged" if flagged else "")) + f" -> {args.out}")
+    if args.method != "lob":
+        from .estimation.diagnostics import course_report
+        print("  " + course_report(est.columns))
     return 0
 
 
@@ -273,6 +281,8 @@ def cmd_score_swd(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .estimation.spec import LOOP_METHODS
+
     ap = argparse.ArgumentParser(prog="evstab", description="Stability-control design for in-wheel-motor EVs.")
     sub = ap.add_subparsers(dest="command", required=True)
     sp = sub.add_parser("vehicles", help="list the bundled vehicle parameter sets")
@@ -290,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof", "two-dof-true"],
                     help="close the stability loop (sensors -> estimator -> controller -> actuators); "
                          "default: no loop, the driver alone")
-    sp.add_argument("--estimator", default="dakf", choices=["dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob"],
+    sp.add_argument("--estimator", default="dakf", choices=LOOP_METHODS,
                     help="estimation method in the loop (default dakf)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--dt", type=_positive, default=1e-3, help="time step [s]")
@@ -339,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("fmvss126", help="FMVSS 126 sine-with-dwell series on the two-track plant")
     sp.add_argument("--vehicle", required=True)
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")
-    sp.add_argument("--estimator", choices=METHODS, default="dakf")
+    sp.add_argument("--estimator", choices=LOOP_METHODS, default="dakf")
     sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--quick", action="store_true", help="only the first two amplitudes at or above 5 A")

@@ -156,7 +156,7 @@ def test_same_as_filterpy():
     np.testing.assert_allclose(ours["beta"], beta, atol=1e-9)  # same arithmetic, different order
 
 
-@pytest.mark.parametrize("method", ["dakf", "lob", "amrkf"])
+@pytest.mark.parametrize("method", ["dakf", "lob", "amrkf", "kkf"])
 def test_backends_agree(method):
     p = load_vehicle("micro-ev")
     r = simulate(p, "two-track", make_maneuver("sine-lane-change", p, 25 / 3.6),

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kalman, lob
+from . import kalman
 from .runner import compiled_filter
 from .spec import FilterDesign
 
@@ -28,9 +28,8 @@ class EstimatorComponent:
         object.__setattr__(self, "_fn", compiled_filter(self.design, "vm").step_fn)
 
     def initial_state(self, yaw_rate0: float = 0.0) -> np.ndarray:
-        if self.design.method == "lob":
-            return lob.initial_state(self.design)
-        return kalman.initial_state(self.design, 0.0, yaw_rate0)
+        from .runner import initial_state
+        return initial_state(self.design, yaw_rate0)
 
     def step(self, state, t, signals):
         course = signals.get("gps_course", np.nan)

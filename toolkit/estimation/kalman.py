@@ -40,7 +40,11 @@ from plants.backend import CASADI, NUMPY
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
 INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay", "gyro_ok")
-OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis", "bias_alarm")
+OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis", "bias_alarm",
+           "course_resid", "gyro_resid")
+"""``course_resid``: the course innovation over its predicted standard deviation (NaN without a
+usable fix); ``gyro_resid``: the gyro innovation [rad/s] before its update (seed 001's two
+residuals, for :mod:`toolkit.estimation.diagnostics`)."""
 
 
 def watches_bias(d: FilterDesign) -> bool:
@@ -174,11 +178,14 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
     P = _propagate(E, P, o, n) + _diag(q * dt, o, n)
+    if d.steer_noise:  # seed 001: process noise enters through the steer input, Q_d ~ b q b^T dt
+        b_st = B[:, 0]
+        P = P + (b_st @ b_st.T if o is CASADI else np.outer(b_st, b_st)) * (nz.q_steer * dt)
 
     # 2. gyro, every sample
     hg = _col(gyro_row(d), o)
-    x, P, _, _ = scalar_update(x, P, hg, gyro - _dot(hg, x, o), nz.gyro_std**2, o, n,
-                               gate=gyro_ok)
+    gyro_resid = gyro - _dot(hg, x, o)
+    x, P, _, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok)
 
     # 3. standstill: the yaw rate is zero
     if d.standstill_update:
@@ -213,6 +220,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     if with_course:
         xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
         nis = innov * innov / S
+        resid = innov / o.sqrt(S)
         usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
         if d.gating:
             inside = nis < nz.gate
@@ -243,6 +251,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     else:  # no fix on this sample: nothing of the course update happens
         acc, first, usable = False, 0.0 * v, 0.0 * v
         accept, nis, K = 0.0 * v, 0.0 * v, gain
+        resid = 0.0 * v
         if watches_bias(d):
             cusum, alarm = z[lay["cusum"]:lay["cusum"] + 2], 0.0 * v
 
@@ -273,6 +282,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         x[d.index("gyro_bias")] if d.bias else zero + nan,
         o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
         alarm if watches_bias(d) else zero,
+        o.if_else(usable > 0.5, resid, nan), gyro_resid,
     ])
     return z_next, y
 

@@ -18,7 +18,7 @@ import numpy as np
 from plants.backend import CASADI, NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
-from . import kalman, lob
+from . import kalman, kkf, lob
 from .spec import FilterDesign
 
 CHUNK = 4000
@@ -37,6 +37,17 @@ class Estimate:
         return self.columns[name]
 
 
+def _plain(d: FilterDesign):
+    """The module of a method with one plain step (no course/no-course variants), else None."""
+    return {"lob": lob, "kkf": kkf}.get(d.method)
+
+
+def initial_state(d: FilterDesign, yaw_rate0: float = 0.0) -> np.ndarray:
+    """The filter state a run starts from."""
+    mod = _plain(d)
+    return mod.initial_state(d) if mod is not None else kalman.initial_state(d, 0.0, yaw_rate0)
+
+
 def _step_function(d: FilterDesign):
     """casadi ``est_step(z, u) -> (z_next, y)``.
 
@@ -45,9 +56,10 @@ def _step_function(d: FilterDesign):
     update, which is exact on the ~99.5 % of samples that carry no fix.
     """
     nin = len(kalman.INPUTS)
-    if d.method == "lob":
-        z, u = ca.SX.sym("z", lob.STATE_SIZE), ca.SX.sym("u", nin)
-        zn, y = lob.step(d, z, u, CASADI)
+    mod = _plain(d)
+    if mod is not None:
+        z, u = ca.SX.sym("z", mod.STATE_SIZE), ca.SX.sym("u", nin)
+        zn, y = mod.step(d, z, u, CASADI)
         return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
     size = kalman.layout(d)["size"]
     variants = []
@@ -100,9 +112,10 @@ class CompiledFilter:
             Y = np.empty((n, ny))
             z = z0.copy()
             d = self.design
+            mod = _plain(d)
             for k in range(n):
-                if d.method == "lob":
-                    z, Y[k] = lob.step(d, z, U[k], NUMPY)
+                if mod is not None:
+                    z, Y[k] = mod.step(d, z, U[k], NUMPY)
                 else:
                     z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, 5] > 0.5))
             return Y
@@ -158,11 +171,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
                             ay=get("ay"), gyro_ok=None if screened is None else screened.gyro_ok,
                             dt0=d.dt_nominal)
     cf = compiled_filter(d, backend)
-    if d.method == "lob":
-        z0 = lob.initial_state(d)
-    else:
-        z0 = kalman.initial_state(d, 0.0, float(U[0, 4]))
-    Y = cf.run(U, z0)
+    Y = cf.run(U, initial_state(d, float(U[0, 4])))
     out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}
     if screened is not None:
         from .monitor import estimate_flags

@@ -26,6 +26,14 @@ Methods
     ``kf`` plus a gyro-bias state.
 ``lob``
     Seed 003's linear observer on (beta, r) with yaw rate and lateral acceleration.
+``mbkf``
+    Seed 001's model-based filter: (beta, r, psi, b_gyro), gyro every sample and course at
+    fixes, process noise through the steer input only (001 eq. 3, ``Q_d ~ B Q_c B^T T_s``)
+    plus the heading and bias walks; no disturbances, gating or HDOP scaling.
+``kkf``
+    Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
+    the integrated gyro and the course, the course update switched off while turning;
+    sideslip = course - heading at each fix taken while turning.
 """
 
 from __future__ import annotations
@@ -39,7 +47,11 @@ from plants import VehicleParams
 from plants.bicycle import lateral_coefficients
 from plants.errors import ModelError
 
-METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob")
+LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob", "mbkf")
+"""Methods the closed loop and the simulator's stability loop can run."""
+METHODS = LOOP_METHODS + ("kkf",)
+METHOD_COLUMNS = {"lob": ("ay",)}
+"""Drive-log columns a method needs beyond the schema's required ones."""
 CHI2_1DOF_999 = 10.827566170662733
 """99.9 % quantile of the chi-square distribution with one degree of freedom."""
 
@@ -75,6 +87,11 @@ class NoiseSettings:
     gps_velocity_std: float = 0.056
     """Horizontal velocity noise per axis at HDOP 1 [m/s]; course std = this * HDOP / speed."""
     course_std_min: float = np.deg2rad(0.05)
+    q_steer: float = 4e-5
+    """[rad^2/s] white noise on the steer input (``mbkf``: its whole model uncertainty; about
+    0.4 deg of steer error over a 1 s manoeuvre)."""
+    kkf_turn_rate: float = 0.035
+    """[rad/s] (2 deg/s) ``kkf`` takes a fix as a heading measurement only below this yaw rate."""
     standstill_speed: float = 0.2
     """Below this speed [m/s] the car is standing: yaw rate is zero (pseudo-measurement)."""
     standstill_std: float = 1e-3
@@ -132,6 +149,8 @@ class FilterDesign:
     dt_nominal: float = 1e-3
     schedule: object = None
     """A :class:`controllers.schedule.SpeedSchedule`: the lateral model from tables (firmware), or None (exact)."""
+    steer_noise: bool = False
+    """Process noise through the steer input (``NoiseSettings.q_steer``; ``mbkf``)."""
 
     @property
     def n(self) -> int:
@@ -158,7 +177,9 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if not (np.isfinite(latency) and 0 <= latency <= 0.5):
         raise ModelError(f"GPS latency must be between 0 and 0.5 s, got {latency!r}")
     p = params.as_nominal() if nominal else params
-    noise = noise or NoiseSettings()
+    if noise is None:
+        # mbkf: the steer input carries the whole model uncertainty (001), no white noise on beta', r'
+        noise = NoiseSettings(q_beta=0.0, q_yaw_rate=0.0) if method == "mbkf" else NoiseSettings()
     lat = ("beta", "yaw_rate", "yaw")
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
@@ -168,6 +189,12 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
                             True, method == "amrkf", latency, antenna_x, dt)
     if method == "kf":
         return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
+    if method == "mbkf":
+        return FilterDesign(method, lat + ("gyro_bias",), p, noise, None, True, False, False, False, False,
+                            latency, antenna_x, dt, steer_noise=True)
+    if method == "kkf":
+        return FilterDesign(method, ("yaw", "gyro_bias"), p, noise, None, True, False, True, False, False,
+                            latency, antenna_x, dt)
     if method == "kf-bias":
         return FilterDesign(method, lat + ("gyro_bias",), p, noise, None, True, False, False, True, False,
                             latency, antenna_x, dt)

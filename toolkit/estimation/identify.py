@@ -1,0 +1,90 @@
+"""Cornering-stiffness identification from a sideslip estimate and the yaw rate (seed 001 sec. VI).
+
+With the sideslip known (from the kinematic filter: course minus integrated heading),
+each sample gives the axle slip angles of the bicycle model (ISO 8855 signs, DESIGN.md)
+
+    alpha_f = delta - beta - l_f r / v,        alpha_r = -beta + l_r r / v,
+
+and the axle forces from the lateral and yaw balances
+
+    F_f + F_r = m a_y,        l_f F_f - l_r F_r = I_z r' - N_z,
+
+so ``F_f = (l_r m a_y + I_z r' - N_z) / L`` and ``F_r = (l_f m a_y - I_z r' + N_z) / L``.
+The per-tire stiffness is the least-squares slope through the origin of ``F = 2 C alpha``
+over the samples with enough slip. ``a_y`` is ``v (r + beta')`` (what the plane motion
+needs, unaffected by body roll and road bank, which tilt an accelerometer; its
+``beta'`` term is dropped: the sideslip estimate changes only at fixes) or the
+accelerometer (``accel=True``). ``r'`` is the derivative of the gyro smoothed over
+``smooth`` s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plants import VehicleParams
+
+
+@dataclass(frozen=True)
+class Stiffness:
+    front: float
+    """[N/rad] per tire."""
+    rear: float
+    samples_front: int
+    samples_rear: int
+    fit_front: float
+    """R^2 of the front fit (through the origin)."""
+    fit_rear: float
+
+
+def _smooth(x, n):
+    if n <= 1:
+        return np.asarray(x, float)
+    k = np.ones(n) / n
+    return np.convolve(np.pad(x, (n // 2, n - 1 - n // 2), mode="edge"), k, mode="valid")
+
+
+def _slope(alpha, force):
+    c2 = float(np.dot(alpha, force) / np.dot(alpha, alpha))
+    res = force - c2 * alpha
+    r2 = 1.0 - float(np.dot(res, res) / np.dot(force, force))
+    return c2 / 2.0, r2
+
+
+def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay=None, yaw_moment=None,
+                        rows=None, accel: bool = False, min_slip: float = np.radians(0.3),
+                        min_speed: float = 5.0, smooth: float = 0.1) -> Stiffness:
+    """Per-tire cornering stiffness of both axles from one run (mass, inertia and axle positions
+    from ``p``; ``rows`` selects samples, e.g. the fixes at which a kinematic sideslip is fresh)."""
+    t, v, d, r, b = (np.asarray(a, float) for a in (t, speed, steer, yaw_rate, beta))
+    dt = float(np.median(np.diff(t)))
+    rs = _smooth(r, max(1, int(round(smooth / dt))))
+    rdot = np.gradient(rs, t)
+    if accel:
+        if ay is None:
+            raise ValueError("cornering_stiffness: accel=True needs the lateral acceleration")
+        a_y = np.asarray(ay, float)
+    else:
+        a_y = v * r
+    nz = np.zeros_like(t) if yaw_moment is None else np.nan_to_num(np.asarray(yaw_moment, float))
+    m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
+    L = lf + lr
+    vv = np.maximum(v, min_speed)
+    f_f = (lr * m * a_y + iz * rdot - nz) / L
+    f_r = (lf * m * a_y - iz * rdot + nz) / L
+    al_f = d - b - lf * r / vv
+    al_r = -b + lr * r / vv
+    sel = np.isfinite(b) & (v >= min_speed)
+    if rows is not None:
+        mask = np.zeros(len(t), bool)
+        mask[np.asarray(rows)] = True
+        sel &= mask
+    sf, sr = sel & (np.abs(al_f) >= min_slip), sel & (np.abs(al_r) >= min_slip)
+    if sf.sum() < 10 or sr.sum() < 10:
+        raise ValueError(f"cornering_stiffness: too few samples with slip above {np.degrees(min_slip):.2f} deg "
+                         f"(front {int(sf.sum())}, rear {int(sr.sum())}; at least 10 each): the run must turn")
+    cf, r2f = _slope(al_f[sf], f_f[sf])
+    cr, r2r = _slope(al_r[sr], f_r[sr])
+    return Stiffness(cf, cr, int(sf.sum()), int(sr.sum()), r2f, r2r)
