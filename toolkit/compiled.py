@@ -195,13 +195,15 @@ def load_chunk_library(key: str, build, name: str, required: bool = False) -> "C
 
 
 def run_chunks(z0, inputs: list, n_out: int, chunk: int, *, c_fn=None, casadi_fn=None, constants=(),
-               fix_column: int | None = None) -> np.ndarray:
+               fix_column: int | None = None, final_state: bool = False):
     """Roll a chunk function ``(z0, U_1 .. U_m, c_1 ..) -> (z_end, Y)`` over all samples.
 
     ``inputs`` are (N, k_i) arrays (one row per sample), ``constants`` arrays passed
     unchanged to every chunk. The last chunk is padded with the last row (``fix_column``
     of the first input set to 0 there: padded samples carry no GPS fix). Runs the compiled
-    ``c_fn`` on numpy buffers when given, else ``casadi_fn``. Returns Y (N, n_out).
+    ``c_fn`` on numpy buffers when given, else ``casadi_fn``. Returns Y (N, n_out), and with
+    ``final_state`` also the state after the last chunk (after the padding samples, if any:
+    callers that need the state after exactly N samples pass a multiple of ``chunk``).
     """
     n = inputs[0].shape[0]
     n_pad = -(-n // chunk) * chunk
@@ -227,7 +229,7 @@ def run_chunks(z0, inputs: list, n_out: int, chunk: int, *, c_fn=None, casadi_fn
             zs, ys = casadi_fn(z, *[P[s:s + chunk].T for P in padded], *consts)
             z = np.array(zs).ravel()
             Y[s:s + chunk] = np.array(ys).T
-    return Y[:n]
+    return (Y[:n], z) if final_state else Y[:n]
 
 
 class CFunction:

@@ -75,10 +75,11 @@ def test_estimate_writes_method_columns(tmp_path):
     header = est.read_text().splitlines()[0].split(",")
     flags = ["fault_gps_spike", "fault_gps_sats", "fault_gps_frozen", "fault_gps_time", "fault_gyro_stuck",
              "fault_gyro_bias", "fault_speed_dropout"]
-    assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis"] + flags
+    assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis",
+                      "course_resid"] + flags
     assert main(["estimate", str(log), "--vehicle", "micro-ev", "--method", "kf", "--out", str(est)]) == 0
     assert est.read_text().splitlines()[0] == ",".join(["t", "beta", "yaw_rate", "yaw", "beta_std", "gps_used",
-                                                        "nis"] + flags)
+                                                        "nis", "course_resid"] + flags)
 
 
 def test_estimate_bad_log_exit_2_names_row_and_column(tmp_path, capsys):

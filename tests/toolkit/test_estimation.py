@@ -11,8 +11,8 @@ from plants.maneuvers import make_maneuver, step_steer
 from plants.sensors import SensorConfig
 from toolkit.estimation import METHODS, design_filter, run_estimator
 from toolkit.estimation.analysis import (discrete_model, observability, periodic_gains, steady_state_gain)
-from toolkit.estimation.kalman import discretize, initial_state, layout, step
-from toolkit.estimation.runner import inputs_from_columns
+from toolkit.estimation.kalman import INPUTS, discretize, initial_state, layout
+from toolkit.estimation.runner import compiled_filter, inputs_from_columns
 from toolkit.estimation.spec import continuous_model, lateral_coefficients
 from plants.backend import NUMPY
 from toolkit.simulator import simulate
@@ -79,6 +79,16 @@ def test_paper_filter_turns_gyro_bias_into_sideslip():
     assert ours["gyro_bias"][-1] == pytest.approx(0.003, abs=3e-4)  # 10 % of the bias
 
 
+def _inputs_row(dt, v, fix):
+    """One filter input row: constant speed, no steer, a zero gyro, course 0 (fix or not), HDOP 1,
+    10 satellites, gyro working."""
+    row = np.zeros(len(INPUTS))
+    vals = {"dt": dt, "speed": v, "fix": fix, "hdop": 1.0, "sats": 10.0, "gyro_ok": 1.0}
+    for k, x in vals.items():
+        row[INPUTS.index(k)] = x
+    return row
+
+
 def test_steady_state_gain_matches_dare_and_dlqe():
     p = load_vehicle("compact-ev")
     d = design_filter("dakf", p)
@@ -88,12 +98,12 @@ def test_steady_state_gain_matches_dare_and_dlqe():
     L, P_ctl, _ = control.dlqe(F, np.eye(d.n), C, Q, R)
     np.testing.assert_allclose(F @ K, L, rtol=1e-6, atol=1e-12)   # predictor gain = F K; DARE solver tolerance
     np.testing.assert_allclose(P, P_ctl, rtol=1e-6, atol=1e-14)
-    # the time-varying filter, fed a fix every sample at constant speed, converges to it
-    z = initial_state(d)
+    # the time-varying filter, fed a fix every sample at constant speed, converges to it (run compiled:
+    # 100,000 numpy steps take minutes; test_backends_agree holds the compiled step to the numpy one)
     lay = layout(d)
-    u = np.array([dt, v, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 10.0, 0.0])
-    for _ in range(100000):
-        z, _ = step(d, z, u)
+    U = np.zeros((100000, len(INPUTS)))
+    U[:] = _inputs_row(dt, v, fix=1.0)
+    _, z = compiled_filter(d).run(U, initial_state(d), final_state=True)
     P_post = z[lay["P"]:lay["P"] + d.n ** 2].reshape(d.n, d.n, order="F")
     K_tv = P_post @ C.T @ np.linalg.inv(R)  # optimal gain identity K = P+ C^T R^-1
     # hdop 1 -> course std = gps_velocity_std / v as in discrete_model. Tolerance 1e-4 absolute
@@ -107,11 +117,11 @@ def test_time_varying_filter_converges_to_periodic_gains():
     d = design_filter("kf-bias", p)
     v, dt = 20.0, 1e-3
     gains, posts = periodic_gains(d, v, 5.0, dt)
-    z = initial_state(d)
     lay = layout(d)
-    for k in range(200 * 300):
-        u = np.array([dt, v, 0.0, 0.0, 0.0, 1.0 if k % 200 == 0 else 0.0, 0.0, 1.0, 10.0, 0.0])
-        z, _ = step(d, z, u)
+    U = np.zeros((200 * 300, len(INPUTS)))
+    U[:] = _inputs_row(dt, v, fix=0.0)
+    U[::200, INPUTS.index("fix")] = 1.0
+    _, z = compiled_filter(d).run(U, initial_state(d), final_state=True)  # 60,000 = 15 chunks exactly
     # after 300 periods the last sample of the period matches the periodic solution's last posterior
     P = z[lay["P"]:lay["P"] + d.n ** 2].reshape(d.n, d.n, order="F")
     np.testing.assert_allclose(P, posts[-1], rtol=1e-8, atol=1e-16)  # measured 1e-11: different algorithms

@@ -18,7 +18,7 @@ import numpy as np
 from plants.backend import CASADI, NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
-from . import kalman, kkf, lob
+from . import kalman, kkf, lob, two_stage
 from .spec import FilterDesign
 
 CHUNK = 4000
@@ -39,7 +39,7 @@ class Estimate:
 
 def _plain(d: FilterDesign):
     """The module of a method with one plain step (no course/no-course variants), else None."""
-    return {"lob": lob, "kkf": kkf}.get(d.method)
+    return {"lob": lob, "kkf": kkf, "two-stage": two_stage}.get(d.method)
 
 
 def initial_state(d: FilterDesign, yaw_rate0: float = 0.0) -> np.ndarray:
@@ -104,8 +104,9 @@ class CompiledFilter:
             self._chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
         return self._chunk_fn
 
-    def run(self, U: np.ndarray, z0: np.ndarray) -> np.ndarray:
-        """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS))."""
+    def run(self, U: np.ndarray, z0: np.ndarray, final_state: bool = False):
+        """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS)), with ``final_state`` also the
+        filter state after the last sample (N a multiple of :data:`CHUNK` for the compiled backends)."""
         n = U.shape[0]
         ny = len(kalman.OUTPUTS)
         if self.backend == "numpy":
@@ -118,9 +119,9 @@ class CompiledFilter:
                     z, Y[k] = mod.step(d, z, U[k], NUMPY)
                 else:
                     z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, 5] > 0.5))
-            return Y
+            return (Y, z) if final_state else Y
         return run_chunks(z0, [U], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
-                          casadi_fn=self.chunk_fn, fix_column=5)
+                          casadi_fn=self.chunk_fn, fix_column=5, final_state=final_state)
 
 
 @lru_cache(maxsize=64)
@@ -129,7 +130,8 @@ def compiled_filter(d: FilterDesign, backend: str = "auto") -> CompiledFilter:
 
 
 def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=None, gps_hdop=None, gps_sats=None,
-                        ay=None, gyro_ok=None, dt0: float = 1e-3) -> np.ndarray:
+                        ay=None, gyro_ok=None, ax=None, gps_speed=None, gps_heading=None,
+                        dt0: float = 1e-3) -> np.ndarray:
     """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable;
     ``gyro_ok`` (0/1 per sample, e.g. from :mod:`toolkit.estimation.monitor`) defaults to a working gyro."""
     n = len(t)
@@ -147,6 +149,11 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     U[:, 8] = 99.0 if gps_sats is None else np.where(np.isfinite(gps_sats), gps_sats, 99.0)
     U[:, 9] = 0.0 if ay is None else np.nan_to_num(ay)
     U[:, 10] = 1.0 if gyro_ok is None else np.asarray(gyro_ok, float)
+    U[:, 11] = 0.0 if ax is None else np.nan_to_num(ax)
+    U[:, 12] = 0.0 if gps_speed is None else np.nan_to_num(gps_speed)
+    if gps_heading is not None:
+        ok = np.isfinite(gps_heading)
+        U[:, 13], U[:, 14] = np.where(ok, gps_heading, 0.0), ok
     return U
 
 
@@ -169,6 +176,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
     U = inputs_from_columns(cols["t"], cols["speed"], cols["steer"], cols["yaw_rate"], cols["gps_course"],
                             yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
                             ay=get("ay"), gyro_ok=None if screened is None else screened.gyro_ok,
+                            ax=get("ax"), gps_speed=get("gps_speed"), gps_heading=get("gps_heading"),
                             dt0=d.dt_nominal)
     cf = compiled_filter(d, backend)
     Y = cf.run(U, initial_state(d, float(U[0, 4])))

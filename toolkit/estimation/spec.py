@@ -30,6 +30,10 @@ Methods
     Seed 001's model-based filter: (beta, r, psi, b_gyro), gyro every sample and course at
     fixes, process noise through the steer input only (001 eq. 3, ``Q_d ~ B Q_c B^T T_s``)
     plus the heading and bias walks; no disturbances, gating or HDOP scaling.
+``two-stage``
+    Seed 000's two-stage filter (:mod:`toolkit.estimation.two_stage`): KF1 heading and gyro
+    bias from the gyro and the dual-antenna heading, KF2 body velocities and accelerometer
+    biases from the accelerometers and the GPS velocity; sideslip = atan2(v_y, v_x).
 ``kkf``
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
@@ -49,8 +53,8 @@ from plants.errors import ModelError
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob", "mbkf")
 """Methods the closed loop and the simulator's stability loop can run."""
-METHODS = LOOP_METHODS + ("kkf",)
-METHOD_COLUMNS = {"lob": ("ay",)}
+METHODS = LOOP_METHODS + ("kkf", "two-stage")
+METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading")}
 """Drive-log columns a method needs beyond the schema's required ones."""
 CHI2_1DOF_999 = 10.827566170662733
 """99.9 % quantile of the chi-square distribution with one degree of freedom."""
@@ -90,6 +94,15 @@ class NoiseSettings:
     q_steer: float = 4e-5
     """[rad^2/s] white noise on the steer input (``mbkf``: its whole model uncertainty; about
     0.4 deg of steer error over a 1 s manoeuvre)."""
+    heading_std: float = np.deg2rad(0.1)
+    """[rad] dual-antenna heading noise per fix (seed 000: 0.1 deg; ``two-stage``)."""
+    accel_std: float = 0.05
+    """[m/s^2] accelerometer white noise per sample (``two-stage``)."""
+    q_velocity: float = 1e-3
+    """[m^2/s^3] white noise on the body-velocity derivatives beyond the accelerometers' (``two-stage``:
+    gravity through body roll and road bank, the lever arm)."""
+    q_accel_bias: float = 1e-4
+    """[m^2/s^5] accelerometer-bias random walk (``two-stage``)."""
     kkf_turn_rate: float = 0.035
     """[rad/s] (2 deg/s) ``kkf`` takes a fix as a heading measurement only below this yaw rate."""
     standstill_speed: float = 0.2
@@ -192,6 +205,9 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if method == "mbkf":
         return FilterDesign(method, lat + ("gyro_bias",), p, noise, None, True, False, False, False, False,
                             latency, antenna_x, dt, steer_noise=True)
+    if method == "two-stage":
+        return FilterDesign(method, ("yaw", "gyro_bias"), p, noise, None, True, False, False, False, False,
+                            latency, antenna_x, dt)
     if method == "kkf":
         return FilterDesign(method, ("yaw", "gyro_bias"), p, noise, None, True, False, True, False, False,
                             latency, antenna_x, dt)
