@@ -16,9 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def _fix_rows(cols, t0, t1):
+def _rows_in(cols, t0, t1):
     t = cols["t"]
-    return np.flatnonzero(np.isfinite(cols["gps_course"]) & (t >= t0) & (t < t1))
+    return np.flatnonzero((t >= t0) & (t < t1))
+
+
+def _fix_rows(cols, t0, t1):
+    rows = _rows_in(cols, t0, t1)
+    return rows[np.isfinite(cols["gps_course"][rows])]
 
 
 @dataclass(frozen=True)
@@ -95,8 +100,7 @@ class GyroStuck:
 
     def apply(self, cols, rng):
         out = dict(cols)
-        t = cols["t"]
-        rows = np.flatnonzero((t >= self.t0) & (t < self.t1))
+        rows = _rows_in(cols, self.t0, self.t1)
         g = np.array(cols["yaw_rate"], float)
         g[rows] = g[rows[0]] if self.value is None else self.value
         out["yaw_rate"] = g
@@ -130,8 +134,7 @@ class WheelSpeedDropout:
 
     def apply(self, cols, rng):
         out = dict(cols)
-        t = cols["t"]
-        rows = np.flatnonzero((t >= self.t0) & (t < self.t1))
+        rows = _rows_in(cols, self.t0, self.t1)
         for name in ("speed", "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"):
             if name in cols:
                 v = np.array(cols[name], float)

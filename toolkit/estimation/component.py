@@ -35,9 +35,15 @@ class EstimatorComponent:
         course = signals.get("gps_course", np.nan)
         fix = np.isfinite(course)
         hdop, sats = signals.get("gps_hdop", np.nan), signals.get("gps_sats", np.nan)
-        u = np.array([signals["dt"], signals["speed"], signals["steer"], signals.get("yaw_moment", 0.0),
-                      signals["yaw_rate"], float(fix), course if fix else 0.0,
-                      hdop if np.isfinite(hdop) else 1.0, sats if np.isfinite(sats) else 99.0,
-                      signals.get("ay", 0.0), signals.get("gyro_ok", 1.0)])
+        heading = signals.get("gps_heading", np.nan)
+        gps_speed = signals.get("gps_speed", np.nan)
+        vals = {"dt": signals["dt"], "speed": signals["speed"], "steer": signals["steer"],
+                "yaw_moment": signals.get("yaw_moment", 0.0), "yaw_rate": signals["yaw_rate"], "fix": float(fix),
+                "course": course if fix else 0.0, "hdop": hdop if np.isfinite(hdop) else 1.0,
+                "sats": sats if np.isfinite(sats) else 99.0, "ay": signals.get("ay", 0.0),
+                "gyro_ok": signals.get("gyro_ok", 1.0), "ax": signals.get("ax", 0.0),
+                "gps_speed": gps_speed if np.isfinite(gps_speed) else 0.0,
+                "heading": heading if np.isfinite(heading) else 0.0, "heading_valid": float(np.isfinite(heading))}
+        u = np.array([vals[name] for name in kalman.INPUTS])
         zn, y = self._fn(state, u)
         return np.array(zn).ravel(), dict(zip(kalman.OUTPUTS, np.array(y).ravel()))
