@@ -67,10 +67,13 @@ class SensorConfig:
     """Antenna position left of the CG [m]."""
     heading_noise: float = np.deg2rad(0.1)
     """Dual-antenna heading noise std [rad] (seed 000: 0.1 deg)."""
+    roll_noise: float = np.deg2rad(0.3)
+    """Dual-antenna roll noise std [rad] (a lateral baseline about a third of the heading's: 0.3 deg).
+    The ``gps_roll`` column (body roll + road bank, seed 002) is written by whole-run measurement only."""
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise", "roll_gyro_noise", "accel_noise", "speed_noise", "wheel_speed_noise",
-                     "steer_noise", "gps_latency", "gps_velocity_noise", "heading_noise", "gps_min_speed"):
+                     "steer_noise", "gps_latency", "gps_velocity_noise", "heading_noise", "roll_noise", "gps_min_speed"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ModelError(f"sensor setting '{name}' must be >= 0, got {v!r}")
@@ -83,7 +86,9 @@ class SensorConfig:
                 raise ModelError(f"GPS outage window {win!r} must be (start, end) with end > start")
 
 
-STREAMS = ("gyro", "roll_gyro", "accel", "speed", "wheel", "steer", "gps", "heading")
+STREAMS = ("gyro", "roll_gyro", "accel", "speed", "wheel", "steer", "gps", "heading", "gps_roll")
+"""One noise stream per sensor; a stream added at the end leaves the others' draws unchanged
+(``SeedSequence.spawn`` children are keyed by their index)."""
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -117,7 +122,8 @@ def draw_noise(cfg: SensorConfig, seed: int, n: int) -> dict:
     return {"steer": rng["steer"].standard_normal(n), "gyro": rng["gyro"].standard_normal(n),
             "roll_gyro": rng["roll_gyro"].standard_normal(n), "accel": rng["accel"].standard_normal((2, n)),
             "wheel": rng["wheel"].standard_normal((4, n)), "speed": rng["speed"].standard_normal(n),
-            "gps": rng["gps"].standard_normal((2, n)), "heading": rng["heading"].standard_normal(n)}
+            "gps": rng["gps"].standard_normal((2, n)), "heading": rng["heading"].standard_normal(n),
+            "gps_roll": rng["gps_roll"].standard_normal(n)}
 
 
 def readings(tr: dict, inp: dict, nz: dict, gps: tuple, fix, cfg: SensorConfig, wheel_radius: float | None,
@@ -204,4 +210,6 @@ def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: i
     out["gps_hdop"] = np.where(fixed, cfg.gps_hdop, nan)
     out["gps_sats"] = np.where(fixed, float(cfg.gps_sats), nan)
     out["gps_heading"] = np.where(fixed, wrap_angle(out["gps_heading"]), nan)
+    if "gps_roll" in noise:  # dual-antenna roll: the body's roll plus the road's bank
+        out["gps_roll"] = np.where(fixed, tr["roll"] + inp["bank"] + cfg.roll_noise * noise["gps_roll"][idx], nan)
     return out

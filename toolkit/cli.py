@@ -94,7 +94,8 @@ def cmd_estimate(args) -> int:
     from .estimation.monitor import FLAGS
 
     # plus the schema's required columns; the monitor reads ax, the GPS columns and gps_time_fault
-    needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault")
+    needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault",
+              "roll_rate", "gps_roll")
     log = read_log(args.log, needed, args.channel_map).without_truth()
     from .estimation.spec import METHOD_COLUMNS
     lacks = [c for c in METHOD_COLUMNS.get(args.method, ()) if not np.any(np.isfinite(log.columns.get(c, [np.nan])))]

@@ -43,7 +43,8 @@ class EstimatorComponent:
                 "sats": sats if np.isfinite(sats) else 99.0, "ay": signals.get("ay", 0.0),
                 "gyro_ok": signals.get("gyro_ok", 1.0), "ax": signals.get("ax", 0.0),
                 "gps_speed": gps_speed if np.isfinite(gps_speed) else 0.0,
-                "heading": heading if np.isfinite(heading) else 0.0, "heading_valid": float(np.isfinite(heading))}
+                "heading": heading if np.isfinite(heading) else 0.0, "heading_valid": float(np.isfinite(heading)),
+                "roll_rate": signals.get("roll_rate", 0.0), "gps_roll": 0.0, "gps_roll_valid": 0.0}
         u = np.array([vals[name] for name in kalman.INPUTS])
         zn, y = self._fn(state, u)
         return np.array(zn).ravel(), dict(zip(kalman.OUTPUTS, np.array(y).ravel()))

@@ -14,7 +14,8 @@ The per-tire stiffness is the least-squares slope through the origin of ``F = 2 
 over the samples with enough slip. ``a_y`` is ``v (r + beta')`` (what the plane motion
 needs, unaffected by body roll and road bank, which tilt an accelerometer; its
 ``beta'`` term is dropped: the sideslip estimate changes only at fixes) or the
-accelerometer (``accel=True``). ``r'`` is the derivative of the gyro smoothed over
+accelerometer (``accel=True``); on a banked road ``bank`` [rad, left side up] adds the
+gravity the tires hold, ``g sin(bank)``. ``r'`` is the derivative of the gyro smoothed over
 ``smooth`` s.
 """
 
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plants import VehicleParams
+from plants.params import G
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,7 @@ def _slope(alpha, force):
 
 
 def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay=None, yaw_moment=None,
-                        rows=None, accel: bool = False, min_slip: float = np.radians(0.3),
+                        rows=None, accel: bool = False, bank=None, min_slip: float = np.radians(0.3),
                         min_speed: float = 5.0, smooth: float = 0.1) -> Stiffness:
     """Per-tire cornering stiffness of both axles from one run (mass, inertia and axle positions
     from ``p``; ``rows`` selects samples, e.g. the fixes at which a kinematic sideslip is fresh)."""
@@ -68,6 +70,8 @@ def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay
         a_y = np.asarray(ay, float)
     else:
         a_y = v * r
+    if bank is not None:  # on a side slope the tires also hold the car against gravity (bank > 0: left up)
+        a_y = a_y + G * np.sin(np.asarray(bank, float))
     nz = np.zeros_like(t) if yaw_moment is None else np.nan_to_num(np.asarray(yaw_moment, float))
     m, iz, lf, lr = p.mass, p.yaw_inertia, p.lf, p.lr
     L = lf + lr

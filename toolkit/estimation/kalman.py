@@ -40,10 +40,10 @@ from plants.backend import CASADI, NUMPY
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
 INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay", "gyro_ok",
-          "ax", "gps_speed", "heading", "heading_valid")
+          "ax", "gps_speed", "heading", "heading_valid", "roll_rate", "gps_roll", "gps_roll_valid")
 """The Kalman step reads the first 11 (``gyro_ok`` optional); the rest feed other methods (``two-stage``)."""
 OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis", "bias_alarm",
-           "course_resid", "gyro_resid", "vx", "vy")
+           "course_resid", "gyro_resid", "vx", "vy", "roll")
 """``course_resid``: the course innovation over its predicted standard deviation (NaN without a
 usable fix); ``gyro_resid``: the gyro innovation [rad/s] before its update (seed 001's two
 residuals, for :mod:`toolkit.estimation.diagnostics`)."""
@@ -284,7 +284,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         x[d.index("gyro_bias")] if d.bias else zero + nan,
         o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
         alarm if watches_bias(d) else zero,
-        o.if_else(usable > 0.5, resid, nan), gyro_resid, zero + nan, zero + nan,
+        o.if_else(usable > 0.5, resid, nan), gyro_resid, zero + nan, zero + nan, zero + nan,
     ])
     return z_next, y
 

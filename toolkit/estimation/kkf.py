@@ -84,5 +84,5 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     resid = innov / o.sqrt(S)
     y = o.stack([beta_n, gyro - b_u, psi_n, o.sqrt(beta_var_n), zero + nan, zero + nan, b_u,
                  o.fmax(upd, first), o.if_else(upd > 0.5, resid * resid, nan), zero,
-                 o.if_else(upd > 0.5, resid, nan), zero + nan, zero + nan, zero + nan])
+                 o.if_else(upd > 0.5, resid, nan), zero + nan, zero + nan, zero + nan, zero + nan])
     return z_next, y

@@ -54,5 +54,5 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     yaw_n = yaw + dt * gyro
     nan = float("nan")
     zero = 0.0 * v
-    y = o.stack([beta_n, r_n, yaw_n, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero, zero + nan, gyro - r, zero + nan, zero + nan])
+    y = o.stack([beta_n, r_n, yaw_n, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero, zero + nan, gyro - r, zero + nan, zero + nan, zero + nan])
     return o.stack([beta_n, r_n, yaw_n]), y

@@ -18,7 +18,7 @@ import numpy as np
 from plants.backend import CASADI, NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
-from . import kalman, kkf, lob, two_stage
+from . import dual_antenna, kalman, kkf, lob, two_stage
 from .spec import FilterDesign
 
 CHUNK = 4000
@@ -39,7 +39,7 @@ class Estimate:
 
 def _plain(d: FilterDesign):
     """The module of a method with one plain step (no course/no-course variants), else None."""
-    return {"lob": lob, "kkf": kkf, "two-stage": two_stage}.get(d.method)
+    return {"lob": lob, "kkf": kkf, "two-stage": two_stage, "dual-antenna": dual_antenna}.get(d.method)
 
 
 def initial_state(d: FilterDesign, yaw_rate0: float = 0.0) -> np.ndarray:
@@ -131,7 +131,7 @@ def compiled_filter(d: FilterDesign, backend: str = "auto") -> CompiledFilter:
 
 def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=None, gps_hdop=None, gps_sats=None,
                         ay=None, gyro_ok=None, ax=None, gps_speed=None, gps_heading=None,
-                        dt0: float = 1e-3) -> np.ndarray:
+                        roll_rate=None, gps_roll=None, dt0: float = 1e-3) -> np.ndarray:
     """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable;
     ``gyro_ok`` (0/1 per sample, e.g. from :mod:`toolkit.estimation.monitor`) defaults to a working gyro."""
     n = len(t)
@@ -154,6 +154,10 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     if gps_heading is not None:
         ok = np.isfinite(gps_heading)
         U[:, 13], U[:, 14] = np.where(ok, gps_heading, 0.0), ok
+    U[:, 15] = 0.0 if roll_rate is None else np.nan_to_num(roll_rate)
+    if gps_roll is not None:
+        ok = np.isfinite(gps_roll)
+        U[:, 16], U[:, 17] = np.where(ok, gps_roll, 0.0), ok
     return U
 
 
@@ -177,7 +181,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
                             yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
                             ay=get("ay"), gyro_ok=None if screened is None else screened.gyro_ok,
                             ax=get("ax"), gps_speed=get("gps_speed"), gps_heading=get("gps_heading"),
-                            dt0=d.dt_nominal)
+                            roll_rate=get("roll_rate"), gps_roll=get("gps_roll"), dt0=d.dt_nominal)
     cf = compiled_filter(d, backend)
     Y = cf.run(U, initial_state(d, float(U[0, 4])))
     out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}

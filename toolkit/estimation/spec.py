@@ -34,6 +34,10 @@ Methods
     Seed 000's two-stage filter (:mod:`toolkit.estimation.two_stage`): KF1 heading and gyro
     bias from the gyro and the dual-antenna heading, KF2 body velocities and accelerometer
     biases from the accelerometers and the GPS velocity; sideslip = atan2(v_y, v_x).
+``dual-antenna``
+    Seed 002's dual-antenna filter (:mod:`toolkit.estimation.dual_antenna`): lateral velocity,
+    heading, total roll (bank + body roll) and the three sensor biases from the lateral
+    accelerometer, yaw and roll gyros, GPS heading, roll and velocity direction.
 ``kkf``
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
@@ -53,8 +57,9 @@ from plants.errors import ModelError
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob", "mbkf")
 """Methods the closed loop and the simulator's stability loop can run."""
-METHODS = LOOP_METHODS + ("kkf", "two-stage")
-METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading")}
+METHODS = LOOP_METHODS + ("kkf", "two-stage", "dual-antenna")
+METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
+                  "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll")}
 """Drive-log columns a method needs beyond the schema's required ones."""
 CHI2_1DOF_999 = 10.827566170662733
 """99.9 % quantile of the chi-square distribution with one degree of freedom."""
@@ -96,6 +101,10 @@ class NoiseSettings:
     0.4 deg of steer error over a 1 s manoeuvre)."""
     heading_std: float = np.deg2rad(0.1)
     """[rad] dual-antenna heading noise per fix (seed 000: 0.1 deg; ``two-stage``)."""
+    roll_std: float = np.deg2rad(0.3)
+    """[rad] dual-antenna roll noise per fix (``dual-antenna``)."""
+    antenna_height: float = 0.0
+    """[m] GPS antenna height above the roll centre (``dual-antenna``; 002 eq. 6's h_a)."""
     accel_std: float = 0.05
     """[m/s^2] accelerometer white noise per sample (``two-stage``)."""
     q_velocity: float = 1e-3
@@ -205,6 +214,9 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if method == "mbkf":
         return FilterDesign(method, lat + ("gyro_bias",), p, noise, None, True, False, False, False, False,
                             latency, antenna_x, dt, steer_noise=True)
+    if method == "dual-antenna":
+        return FilterDesign(method, ("yaw", "gyro_bias"), p, noise, None, True, False, False, False, False,
+                            latency, antenna_x, dt)
     if method == "two-stage":
         return FilterDesign(method, ("yaw", "gyro_bias"), p, noise, None, True, False, False, False, False,
                             latency, antenna_x, dt)

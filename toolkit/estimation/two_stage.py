@@ -106,5 +106,5 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     nan = float("nan")
     zero = 0.0 * v
     y = o.stack([beta, r, psi, zero + nan, zero + nan, zero + nan, x1[1], usable, zero + nan, zero,
-                 zero + nan, zero + nan, x2[0], x2[1]])
+                 zero + nan, zero + nan, x2[0], x2[1], zero + nan])
     return z_next, y

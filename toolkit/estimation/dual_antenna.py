@@ -1,0 +1,107 @@
+"""Seed 002's dual-antenna GPS/INS estimator: lateral velocity, heading and total roll with sensor biases.
+
+States ``(u_y, b_ay, psi, b_r, phi_t, b_p)``: body lateral velocity, lateral-accelerometer
+bias, heading, yaw-gyro bias, total roll ``phi_t`` = road bank + body roll, roll-gyro
+bias. The INS readings are inputs (002 eq. 3, the roll-centre model on a road side
+slope, with the small terms ``c r'`` and ``h phi''`` left to the process noise):
+
+    u_y' = a_y,m - (r_m - b_r) u_x - g phi_t - b_ay,
+    psi' = r_m - b_r,        phi_t' = p_m - b_p,
+
+``u_x`` the wheels' speed. At each fix the dual antenna measures heading and total roll
+(002 eq. 5: the roll from a lateral baseline), and the velocity direction gives
+``nu = psi + (u_y - h_a p) / U`` (002 eq. 6-9, small angles; ``h_a`` the antenna's height
+above the roll centre, 0 unless given: the simulator's antenna has no height).
+Sideslip ``beta = atan2(u_y, u_x)``; the tire slip angles follow from it (DESIGN.md
+signs: ``alpha_f = delta - beta - l_f r / u_x``, ``alpha_r = -beta + l_r r / u_x``) and
+:mod:`toolkit.estimation.identify` turns them and the lateral acceleration into the
+cornering stiffness. Bank and body roll cannot be told apart by these measurements
+(002: only their sum is observable); the filter does not try.
+
+State vector: ``x`` (6), ``P`` (6 x 6, column-major), ``init``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plants.backend import NUMPY
+from plants.params import G
+from .kalman import INPUTS, _col, scalar_update
+from .spec import FilterDesign
+
+
+def bank_estimate(p, roll_total, speed, yaw_rate):
+    """Road bank from the total roll less the body roll of the roll model in steady state
+    (seed 004 eq. 3 with ``phi'' = phi' = 0``: ``K_x phi = M_s h_s a_y``, ``a_y = v r``): 002 eq. 7's
+    separation of the two angles by the vehicle's dynamics."""
+    body = p.sprung_mass * p.roll_arm * np.asarray(speed, float) * np.asarray(yaw_rate, float) / p.roll_stiffness
+    return np.asarray(roll_total, float) - body
+
+N = 6
+STATE_SIZE = N + N * N + 1
+NEEDS = ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll")
+
+
+def initial_state(d: FilterDesign) -> np.ndarray:
+    z = np.zeros(STATE_SIZE)
+    z[N:N + N * N] = np.diag([1.0, 0.5 ** 2, np.pi ** 2, 0.01 ** 2, np.radians(5.0) ** 2, 0.01 ** 2]).ravel(order="F")
+    return z
+
+
+def _wrap(a, o):
+    return o.arctan2(o.sin(a), o.cos(a))
+
+
+def step(d: FilterDesign, z, u, o=NUMPY):
+    nz = d.noise
+    g = {name: u[i] for i, name in enumerate(INPUTS)}
+    dt, ux, gyro, ay, pm = g["dt"], g["speed"], g["yaw_rate"], g["ay"], g["roll_rate"]
+    x = z[0:N]
+    P = o.reshape(z[N:N + N * N], N, N)
+    init = z[N + N * N]
+    uy, bay, psi, br, phi, bp = (x[i] for i in range(N))
+    r = gyro - br
+    ux_m = o.fmax(ux, nz.min_speed)
+    x = o.stack([uy + (ay - r * ux - G * phi - bay) * dt, bay, psi + r * dt, br, phi + (pm - bp) * dt, bp])
+    F = o.eye(N) + o.zeros(N, N)
+    F[0, 1], F[0, 3], F[0, 4] = -dt, ux * dt, -G * dt
+    F[2, 3] = -dt
+    F[4, 5] = -dt
+    Q = o.zeros(N, N)
+    Q[0, 0] = (nz.accel_std * dt) ** 2 + nz.q_velocity * dt
+    Q[1, 1] = nz.q_accel_bias * dt
+    Q[2, 2] = (nz.gyro_std * dt) ** 2
+    Q[3, 3] = nz.q_bias * dt
+    Q[4, 4] = (nz.gyro_std * dt) ** 2
+    Q[5, 5] = nz.q_bias * dt
+    P = F @ P @ F.T + Q
+    sats_ok = g["sats"] >= 4
+    have_h = (g["heading_valid"] > 0.5) * sats_ok
+    have_r = (g["gps_roll_valid"] > 0.5) * sats_ok
+    first = have_h * (init < 0.5)
+    # the first heading sets psi outright (any heading error would otherwise reach u_y)
+    e2 = _col(np.eye(N)[2], o)
+    keep = _col(1.0 - np.eye(N)[2], o)
+    x = x + e2 * (first * _wrap(g["heading"] - x[2], o))
+    P = o.if_else(first > 0.5, P * o.outer(keep, keep) + o.outer(e2, e2) * nz.heading_std ** 2, P)
+    x, P, _, _ = scalar_update(x, P, e2, _wrap(g["heading"] - x[2], o), nz.heading_std ** 2, o, N,
+                               gate=have_h * (1.0 - first))
+    e4 = _col(np.eye(N)[4], o)
+    x, P, _, _ = scalar_update(x, P, e4, g["gps_roll"] - x[4], nz.roll_std ** 2, o, N, gate=have_r)
+    # the velocity direction: nu = psi + (u_y - h_a (p_m - b_p)) / U
+    U = o.fmax(g["gps_speed"], nz.gps_min_speed)
+    usable = (g["fix"] > 0.5) * sats_ok * (g["gps_speed"] >= nz.gps_min_speed) * (init > 0.5)
+    ha = nz.antenna_height
+    hc = _col([1.0, 0.0, 0.0, 0.0, 0.0, 0.0], o) * (1.0 / U) + e2 + _col(np.eye(N)[5], o) * (ha / U)
+    pred = x[2] + (x[0] - ha * (pm - x[5])) / U
+    r_c = (nz.gps_velocity_std * g["hdop"] / U) ** 2
+    x, P, _, _ = scalar_update(x, P, hc, _wrap(g["course"] - pred, o), r_c, o, N, gate=usable)
+    init_n = o.fmax(init, have_h)
+    z_next = o.concat([x, o.flatten(P), o.stack([init_n])])
+    beta = o.arctan2(x[0], ux_m)
+    nan = float("nan")
+    zero = 0.0 * ux
+    y = o.stack([beta, gyro - x[3], x[2], o.sqrt(o.fmax(P[0, 0], 0.0)) / ux_m, zero + nan, zero + nan, x[3], usable,
+                 zero + nan, zero, zero + nan, zero + nan, ux + zero, x[0], x[4]])
+    return z_next, y
