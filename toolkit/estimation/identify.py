@@ -55,11 +55,8 @@ def _slope(alpha, force):
     return c2 / 2.0, r2
 
 
-def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay=None, yaw_moment=None,
-                        rows=None, accel: bool = False, bank=None, min_slip: float = np.radians(0.3),
-                        min_speed: float = 5.0, smooth: float = 0.1) -> Stiffness:
-    """Per-tire cornering stiffness of both axles from one run (mass, inertia and axle positions
-    from ``p``; ``rows`` selects samples, e.g. the fixes at which a kinematic sideslip is fresh)."""
+def _samples(p, t, speed, steer, yaw_rate, beta, ay, yaw_moment, rows, accel, bank, min_slip, min_speed, smooth):
+    """Slip angles, axle forces and the usable samples of each axle (see the module docstring)."""
     t, v, d, r, b = (np.asarray(a, float) for a in (t, speed, steer, yaw_rate, beta))
     dt = float(np.median(np.diff(t)))
     rs = _smooth(r, max(1, int(round(smooth / dt))))
@@ -85,10 +82,48 @@ def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay
         mask = np.zeros(len(t), bool)
         mask[np.asarray(rows)] = True
         sel &= mask
-    sf, sr = sel & (np.abs(al_f) >= min_slip), sel & (np.abs(al_r) >= min_slip)
+    return (al_f, f_f, sel & (np.abs(al_f) >= min_slip)), (al_r, f_r, sel & (np.abs(al_r) >= min_slip))
+
+
+def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay=None, yaw_moment=None,
+                        rows=None, accel: bool = False, bank=None, min_slip: float = np.radians(0.3),
+                        min_speed: float = 5.0, smooth: float = 0.1) -> Stiffness:
+    """Per-tire cornering stiffness of both axles from one run (mass, inertia and axle positions
+    from ``p``; ``rows`` selects samples, e.g. the fixes at which a kinematic sideslip is fresh)."""
+    (al_f, f_f, sf), (al_r, f_r, sr) = _samples(p, t, speed, steer, yaw_rate, beta, ay, yaw_moment, rows, accel,
+                                                bank, min_slip, min_speed, smooth)
     if sf.sum() < 10 or sr.sum() < 10:
         raise ValueError(f"cornering_stiffness: too few samples with slip above {np.degrees(min_slip):.2f} deg "
                          f"(front {int(sf.sum())}, rear {int(sr.sum())}; at least 10 each): the run must turn")
     cf, r2f = _slope(al_f[sf], f_f[sf])
     cr, r2r = _slope(al_r[sr], f_r[sr])
     return Stiffness(cf, cr, int(sf.sum()), int(sr.sum()), r2f, r2r)
+
+
+def cornering_stiffness_online(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, forgetting: float = 1.0,
+                               **kwargs) -> tuple[np.ndarray, np.ndarray]:
+    """The same estimate as it evolves, sample by sample (recursive least squares through the origin:
+    ``C = sum(lambda^j alpha F) / (2 sum(lambda^j alpha^2))`` over the usable samples so far, each
+    older usable sample weighted by ``forgetting`` once more). Per-tire front and rear arrays over
+    ``t``, NaN until an axle has 10 usable samples; with ``forgetting`` 1 the last value is
+    :func:`cornering_stiffness`'s."""
+    import scipy.signal
+
+    if not 0 < forgetting <= 1:
+        raise ValueError(f"cornering_stiffness_online: forgetting must be in (0, 1], got {forgetting!r}")
+    out = []
+    for al, f, s in _samples(p, t, speed, steer, yaw_rate, beta, kwargs.get("ay"), kwargs.get("yaw_moment"),
+                             kwargs.get("rows"), kwargs.get("accel", False), kwargs.get("bank"),
+                             kwargs.get("min_slip", np.radians(0.3)), kwargs.get("min_speed", 5.0),
+                             kwargs.get("smooth", 0.1)):
+        idx = np.flatnonzero(s)
+        c = np.full(len(al), np.nan)
+        if len(idx):
+            num = scipy.signal.lfilter([1.0], [1.0, -forgetting], al[idx] * f[idx])
+            den = scipy.signal.lfilter([1.0], [1.0, -forgetting], al[idx] ** 2)
+            est = num / (2.0 * den)
+            est[:9] = np.nan
+            pos = np.searchsorted(idx, np.arange(len(al)), side="right") - 1  # last usable sample so far
+            c = np.where(pos >= 0, est[np.maximum(pos, 0)], np.nan)
+        out.append(c)
+    return out[0], out[1]

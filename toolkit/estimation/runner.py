@@ -185,6 +185,12 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
     cf = compiled_filter(d, backend)
     Y = cf.run(U, initial_state(d, float(U[0, 4])))
     out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}
+    if d.method == "double-layer":  # layer 2 on layer 1's (amrkf's) sideslip and yaw rate
+        from .double_layer import layer2
+        l2 = layer2(d.params, cols["t"], get("ax", np.zeros(len(U))), get("ay", np.zeros(len(U))), out["yaw_rate"],
+                    get("roll_rate", np.zeros(len(U))), get("gps_speed", np.full(len(U), np.nan)), out["beta"],
+                    out["beta_std"])
+        out.update({"vx": l2["vx"], "vy": l2["vy"], "roll": l2["roll"]})
     if screened is not None:
         from .monitor import estimate_flags
         out.update(estimate_flags(screened, out, d.noise.gate))

@@ -38,6 +38,10 @@ Methods
     Seed 002's dual-antenna filter (:mod:`toolkit.estimation.dual_antenna`): lateral velocity,
     heading, total roll (bank + body roll) and the three sensor biases from the lateral
     accelerometer, yaw and roll gyros, GPS heading, roll and velocity direction.
+``double-layer``
+    Seed 004's double-layer estimator: layer 1 is ``amrkf`` (the advanced multi-rate filter),
+    layer 2 (:mod:`toolkit.estimation.double_layer`) adds vx, vy and the roll angle from the
+    accelerometers, the roll rate and pseudo-velocities from layer 1's sideslip.
 ``kkf``
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
@@ -57,9 +61,10 @@ from plants.errors import ModelError
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob", "mbkf")
 """Methods the closed loop and the simulator's stability loop can run."""
-METHODS = LOOP_METHODS + ("kkf", "two-stage", "dual-antenna")
+METHODS = LOOP_METHODS + ("kkf", "two-stage", "dual-antenna", "double-layer")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
-                  "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll")}
+                  "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll"),
+                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}
 """Drive-log columns a method needs beyond the schema's required ones."""
 CHI2_1DOF_999 = 10.827566170662733
 """99.9 % quantile of the chi-square distribution with one degree of freedom."""
@@ -206,9 +211,9 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
                             False, latency, antenna_x, dt)
-    if method in ("dakf", "amrkf"):
+    if method in ("dakf", "amrkf", "double-layer"):
         return FilterDesign(method, lat + ("d1", "d2", "gyro_bias"), p, noise, "gauss-markov", True, True, True,
-                            True, method == "amrkf", latency, antenna_x, dt)
+                            True, method != "dakf", latency, antenna_x, dt)
     if method == "kf":
         return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
     if method == "mbkf":
