@@ -106,11 +106,17 @@ def write_log_csv(path: str | Path, columns: dict) -> None:
 
 
 def write_log_table(path: str | Path, columns: dict) -> None:
-    """Write a table of float columns as CSV (NaN as empty, shortest round-trip digits),
-    atomically, in the given order (pyarrow's CSV writer)."""
+    """Write a table of float columns as CSV (NaN as empty, shortest round-trip digits; integer and
+    boolean columns as integers), atomically, in the given order (pyarrow's CSV writer)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
-    table = pa.table({c: pa.array(np.asarray(columns[c], float), from_pandas=True) for c in columns})
+    def arr(v):
+        v = np.asarray(v)
+        if v.dtype.kind in "iub":  # flags and counts stay integers (written as 0/1, much faster than floats)
+            return pa.array(v.astype(np.int64) if v.dtype.kind == "b" else v)
+        return pa.array(np.asarray(v, float), from_pandas=True)
+
+    table = pa.table({c: arr(columns[c]) for c in columns})
     opts = pacsv.WriteOptions(include_header=False, quoting_style="none")
 
     def write(fh):
