@@ -27,7 +27,7 @@ import numpy as np
 
 from plants.backend import NUMPY
 from plants.params import G
-from .kalman import INPUTS, _col, scalar_update
+from .kalman import INPUTS, _col, scalar_update, wrap
 from .spec import FilterDesign
 
 
@@ -47,10 +47,6 @@ def initial_state(d: FilterDesign) -> np.ndarray:
     z = np.zeros(STATE_SIZE)
     z[N:N + N * N] = np.diag([1.0, 0.5 ** 2, np.pi ** 2, 0.01 ** 2, np.radians(5.0) ** 2, 0.01 ** 2]).ravel(order="F")
     return z
-
-
-def _wrap(a, o):
-    return o.arctan2(o.sin(a), o.cos(a))
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
@@ -83,9 +79,9 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     # the first heading sets psi outright (any heading error would otherwise reach u_y)
     e2 = _col(np.eye(N)[2], o)
     keep = _col(1.0 - np.eye(N)[2], o)
-    x = x + e2 * (first * _wrap(g["heading"] - x[2], o))
+    x = x + e2 * (first * wrap(g["heading"] - x[2], o))
     P = o.if_else(first > 0.5, P * o.outer(keep, keep) + o.outer(e2, e2) * nz.heading_std ** 2, P)
-    x, P, _, _ = scalar_update(x, P, e2, _wrap(g["heading"] - x[2], o), nz.heading_std ** 2, o, N,
+    x, P, _, _ = scalar_update(x, P, e2, wrap(g["heading"] - x[2], o), nz.heading_std ** 2, o, N,
                                gate=have_h * (1.0 - first))
     e4 = _col(np.eye(N)[4], o)
     x, P, _, _ = scalar_update(x, P, e4, g["gps_roll"] - x[4], nz.roll_std ** 2, o, N, gate=have_r)
@@ -96,7 +92,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     hc = _col([1.0, 0.0, 0.0, 0.0, 0.0, 0.0], o) * (1.0 / U) + e2 + _col(np.eye(N)[5], o) * (ha / U)
     pred = x[2] + (x[0] - ha * (pm - x[5])) / U
     r_c = (nz.gps_velocity_std * g["hdop"] / U) ** 2
-    x, P, _, _ = scalar_update(x, P, hc, _wrap(g["course"] - pred, o), r_c, o, N, gate=usable)
+    x, P, _, _ = scalar_update(x, P, hc, wrap(g["course"] - pred, o), r_c, o, N, gate=usable)
     init_n = o.fmax(init, have_h)
     z_next = o.concat([x, o.flatten(P), o.stack([init_n])])
     beta = o.arctan2(x[0], ux_m)

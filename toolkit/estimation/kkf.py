@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from plants.backend import NUMPY
+from .kalman import wrap
 from .spec import FilterDesign
 
 STATE_SIZE = 9
@@ -29,10 +30,6 @@ def initial_state(d: FilterDesign) -> np.ndarray:
     z[5] = d.initial_covariance()[d.index("gyro_bias"), d.index("gyro_bias")]
     z[7] = np.deg2rad(2.0) ** 2
     return z
-
-
-def _wrap(a, o):
-    return o.arctan2(o.sin(a), o.cos(a))
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
@@ -59,7 +56,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     first = usable * (init < 0.5)
     straight = o.fabs(rate) < nz.kkf_turn_rate
     upd = usable * straight * (1.0 - first)
-    innov = _wrap(course - psi, o)
+    innov = wrap(course - psi, o)
     S = p11 + r_c
     k1, k2 = p11 / S, p21 / S
     g = upd  # 0/1: the update happens or leaves everything as it was
@@ -75,7 +72,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     u12 = o.if_else(first > 0.5, 0.0 * v, u12)
     # sideslip: course - heading at every usable fix (after the update when straight), held between
     turning_fix = usable * (1.0 - first)
-    beta_n = o.if_else(turning_fix > 0.5, _wrap(course - psi_n, o), beta)
+    beta_n = o.if_else(turning_fix > 0.5, wrap(course - psi_n, o), beta)
     beta_var_n = o.if_else(turning_fix > 0.5, r_c + u11, beta_var)
     init_n = o.fmax(init, usable)
     z_next = o.stack([psi_n, b_u, u11, u12, u12, u22, beta_n, beta_var_n, init_n])

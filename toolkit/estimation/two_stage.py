@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from plants.backend import NUMPY
-from .kalman import INPUTS, _col, scalar_update
+from .kalman import INPUTS, _col, scalar_update, wrap
 from .spec import FilterDesign
 
 STATE_SIZE = 2 + 4 + 4 + 16 + 1
@@ -42,10 +42,6 @@ def sideslip_at(vx, vy, r, x: float, y: float = 0.0):
     """Sideslip at body point (x forward, y left, from the reference point) of a body moving with
     (vx, vy) at the reference point and yaw rate r: ``atan2(vy + r x, vx - r y)``."""
     return np.arctan2(np.asarray(vy) + np.asarray(r) * x, np.asarray(vx) - np.asarray(r) * y)
-
-
-def _wrap(a, o):
-    return o.arctan2(o.sin(a), o.cos(a))
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
@@ -69,7 +65,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     init = z[26]
     first = have_h * (init < 0.5)
     h1 = _col([1.0, 0.0], o)
-    x1u, P1u, _, _ = scalar_update(x1, P1, h1, _wrap(heading - x1[0], o), nz.heading_std ** 2, o, 2,
+    x1u, P1u, _, _ = scalar_update(x1, P1, h1, wrap(heading - x1[0], o), nz.heading_std ** 2, o, 2,
                                    gate=have_h * (1.0 - first))
     x1_first = o.stack([heading, x1[1]])
     x1 = o.if_else(first > 0.5, x1_first, x1u)
