@@ -246,8 +246,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         if watches_bias(d):
             calm = (o.fabs(gyro - x[d.index("gyro_bias")]) < nz.bias_cusum_rate_max) * \
                 (o.fabs(u[9]) < nz.bias_cusum_ay_max)
-            x, P, cusum, alarm = _bias_watch(d, z[lay["cusum"]:lay["cusum"] + 2], innov / o.sqrt(S),
-                                             accept * calm, relock, x, P, o)
+            P, cusum, alarm = _bias_watch(d, z[lay["cusum"]:lay["cusum"] + 2], resid, accept * calm, relock, P, o)
         init = o.fmax(init, usable)
 
     else:  # no fix on this sample: nothing of the course update happens
@@ -293,14 +292,14 @@ def _length(u, o):
     return u.numel() if o is CASADI else len(u)
 
 
-def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, x, P, o):
+def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):
     """Two-sided CUSUM on the normalised innovations ``nu`` of accepted fixes (N(0, 1) while
     the model holds): ``g+ = max(0, g+ + nu - k)``, ``g- = max(0, g- - nu - k)``. A gyro bias
     step makes the heading drift one way between fixes, so the innovations keep one sign;
     when either sum passes ``h`` the bias variance is raised to at least its initial value
     (the filter relearns the bias in seconds instead of minutes; raising a diagonal entry
     keeps ``P`` positive definite) and both sums restart, as they do on a re-lock.
-    Returns ``(x, P, cusum_next, alarm)``."""
+    Returns ``(P, cusum_next, alarm)``."""
     nz, n = d.noise, d.n
     k, h = nz.bias_cusum_k, nz.bias_cusum_h
     gp = o.fmax(cusum[0] + (nu - k) * accept, 0.0)
@@ -311,7 +310,7 @@ def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, x, P, o):
     P = P + o.outer(eb, eb) * (alarm * o.fmax(float(d.initial_covariance()[ib, ib]) - P[ib, ib], 0.0))
     keep = (1.0 - alarm) * (1.0 - relock)
     cusum_next = o.stack([gp * keep, gm * keep])
-    return x, P, cusum_next, alarm
+    return P, cusum_next, alarm
 
 
 def _propagate(E, P, o, n):

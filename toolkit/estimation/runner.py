@@ -136,28 +136,30 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     ``gyro_ok`` (0/1 per sample, e.g. from :mod:`toolkit.estimation.monitor`) defaults to a working gyro."""
     n = len(t)
     U = np.zeros((n, len(kalman.INPUTS)))
-    dt = np.empty(n)
-    dt[0] = dt0 if n < 2 else t[1] - t[0]
-    dt[1:] = np.diff(t)
-    fix = np.isfinite(gps_course)
-    U[:, 0], U[:, 1], U[:, 2] = dt, speed, steer
-    U[:, 3] = 0.0 if yaw_moment is None else np.nan_to_num(yaw_moment)
-    U[:, 4] = yaw_rate
-    U[:, 5] = fix
-    U[:, 6] = np.where(fix, gps_course, 0.0)
-    U[:, 7] = 1.0 if gps_hdop is None else np.where(np.isfinite(gps_hdop), gps_hdop, 1.0)
-    U[:, 8] = 99.0 if gps_sats is None else np.where(np.isfinite(gps_sats), gps_sats, 99.0)
-    U[:, 9] = 0.0 if ay is None else np.nan_to_num(ay)
-    U[:, 10] = 1.0 if gyro_ok is None else np.asarray(gyro_ok, float)
-    U[:, 11] = 0.0 if ax is None else np.nan_to_num(ax)
-    U[:, 12] = 0.0 if gps_speed is None else np.nan_to_num(gps_speed)
-    if gps_heading is not None:
-        ok = np.isfinite(gps_heading)
-        U[:, 13], U[:, 14] = np.where(ok, gps_heading, 0.0), ok
-    U[:, 15] = 0.0 if roll_rate is None else np.nan_to_num(roll_rate)
-    if gps_roll is not None:
-        ok = np.isfinite(gps_roll)
-        U[:, 16], U[:, 17] = np.where(ok, gps_roll, 0.0), ok
+    col = {name: U[:, i] for i, name in enumerate(kalman.INPUTS)}  # views: writing them fills U
+
+    def put(name, values, missing=0.0):
+        col[name][:] = missing if values is None else np.nan_to_num(np.asarray(values, float), nan=missing)
+
+    def put_with_validity(name, valid, values):  # a sometimes-present measurement and its 0/1 flag
+        if values is not None:
+            ok = np.isfinite(values)
+            col[name][:], col[valid][:] = np.where(ok, values, 0.0), ok
+
+    col["dt"][0] = dt0 if n < 2 else t[1] - t[0]
+    col["dt"][1:] = np.diff(t)
+    col["speed"][:], col["steer"][:], col["yaw_rate"][:] = speed, steer, yaw_rate
+    put_with_validity("course", "fix", gps_course)
+    put("yaw_moment", yaw_moment)
+    put("hdop", gps_hdop, 1.0)
+    put("sats", gps_sats, 99.0)
+    put("ay", ay)
+    put("gyro_ok", gyro_ok, 1.0)
+    put("ax", ax)
+    put("gps_speed", gps_speed)
+    put_with_validity("heading", "heading_valid", gps_heading)
+    put("roll_rate", roll_rate)
+    put_with_validity("gps_roll", "gps_roll_valid", gps_roll)
     return U
 
 
