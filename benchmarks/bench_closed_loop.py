@@ -46,7 +46,7 @@ def python_control_loop(p, man, dist, sens, seconds, dt=1e-3):
 
     def plant_upd(t, xs, u, params):
         x = xs[:nx]
-        cmd, w = u[:4], u[4:]
+        cmd, w = np.append(u[:4], 0.0), u[4:]  # steer_rate: the two-track takes the angle directly
         y = model.h(x, model.command_map(cmd, x, p), w, p)
         return np.concatenate([rk4_step(model, p, x, cmd, w, dt, n_sub), y])
 
@@ -92,7 +92,7 @@ def python_control_loop(p, man, dist, sens, seconds, dt=1e-3):
     U = np.vstack([np.full(n, man.speed), man.drive_on(t), W, _noise_matrix(sens, 0, int(round(man.duration / dt)))[:, :n],
                    gps_fix_mask(t, sens), man.steer(t), W[DISTURBANCES.index("bank")]])
     x0 = model.initial_state(p, man.speed)
-    _, y0 = compiled_plant(model, p, dt).step(x0, np.array([0.0, 0.0, man.speed, 1.0]), W[:, 0])
+    _, y0 = compiled_plant(model, p, dt).step(x0, np.array([0.0, 0.0, man.speed, 1.0, 0.0]), W[:, 0])
     z0 = np.zeros(sum(sizes))
     z0[:ne] = kalman.initial_state(est, 0.0, 0.0)
     t0 = time.perf_counter()

@@ -8,6 +8,11 @@ is the same numpy ``f(x, u, w, p)``. python-control is slow, so by default it
 runs the first ``--ref-seconds`` of the same run and its cost is reported per
 step; the ratio printed is per-step time (python-control / evstab).
 
+The CommonRoad multi-body car (``commonroad-mb:1``) is compared with the package's own
+Python function ``vehiclemodels.vehicle_dynamics_mb`` instead, stepped by the same RK4 in
+Python with the same servo and speed hold, with the package's tyre ``sign`` replaced by
+evstab's smoothed one so that both integrate one model (the final-state difference says so).
+
 Run: ``python benchmarks/bench_plants.py [--vehicle compact-ev] [--ref-seconds 1]``
 """
 
@@ -58,7 +63,7 @@ def main(argv=None) -> None:
         tv, _ = best_of(lambda: cp_v.rollout(x0, cmd, w), 2)
 
         def upd(_t, x, u, _params, model=model):
-            return model.f(x, model.command_map(u[:4], x, p), u[4:], p)
+            return model.f(x, model.command_map(u[:len(COMMANDS)], x, p), u[len(COMMANDS):], p)
 
         sys = control.nlsys(upd, None, inputs=len(COMMANDS) + len(DISTURBANCES), states=list(model.states),
                             outputs=list(model.states), name=name)
@@ -72,6 +77,52 @@ def main(argv=None) -> None:
         print(f"{name:14s} {per_c * 1e6:9.3f} us {per_v * 1e6:9.3f} us {per_ref * 1e6:12.1f} us "
               f"{per_ref / per_c:8.0f}x {per_ref / per_v:8.0f}x   (final-state diff {err:.1e}; "
               f"backend {cp_c.backend}, {cp_c.n_sub} RK4 sub-step(s))")
+    multibody(args, cmd, t, n)
+
+
+def multibody(args, cmd, t, n) -> None:
+    """commonroad-mb:1 compiled against the package's Python function stepped by RK4 in Python."""
+    import vehiclemodels.utils.tire_model as tm
+    from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
+    from plants import commonroad_mb as mb, get_plant
+    from plants.backend import NUMPY
+    model = get_plant("commonroad-mb:1")
+    p = load_vehicle("commonroad-1")
+    v = cmd[2, 0]
+    x0 = model.initial_state(p, v)
+    cp = CompiledPlant(model, p, args.dt, compile=True)
+    cmd = cmd.copy()
+    cmd[4] = np.diff(cmd[0], prepend=cmd[0, :1]) / args.dt
+    w = default_disturbance()
+    tc, (Xc, _) = best_of(lambda: cp.rollout(x0, cmd, w), 5)
+    P = mb.package_parameters(1)
+    tm.sign = lambda g: float(mb.smooth_sign(g, NUMPY))  # the same tyre as the port (this process only)
+    h = args.dt / cp.n_sub
+    i_st = mb.STATES.index("steer")
+
+    def rhs(x, c):
+        u = model.command_map(c, x, p)  # servo and speed hold: the plant's own map
+        rate = u[1] + mb.SERVO_GAIN * (u[0] - x[i_st])
+        fs = vehicle_dynamics_mb(list(x[:29] * mb.SAE_SIGN), [-rate, u[2]], P)
+        return np.append(np.asarray(fs) * mb.SAE_SIGN, u[5])
+
+    m = int(round(args.ref_seconds / args.dt))
+    x = x0.copy()
+    t0 = time.perf_counter()
+    for k in range(m):
+        c = cmd[:, k]
+        for _ in range(cp.n_sub):
+            k1 = rhs(x, c)
+            k2 = rhs(x + h / 2 * k1, c)
+            k3 = rhs(x + h / 2 * k2, c)
+            k4 = rhs(x + h * k3, c)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    tref = time.perf_counter() - t0
+    err = np.abs(x - Xc[:, m]).max()
+    per_c, per_ref = tc / n, tref / m
+    print(f"{'commonroad-mb:1':14s} {per_c * 1e6:9.3f} us {'':>12s} {per_ref * 1e6:12.1f} us "
+          f"{per_ref / per_c:8.0f}x {'':>9s}   (against the package's vehicle_dynamics_mb in Python; "
+          f"final-state diff {err:.1e}; {cp.n_sub} RK4 sub-steps)")
 
 
 if __name__ == "__main__":

@@ -19,9 +19,11 @@ from .errors import ModelError
 from .lti import ContinuousLTI
 from .params import VehicleParams
 
-COMMANDS = ("steer", "yaw_moment", "speed_ref", "drive_on")
+COMMANDS = ("steer", "yaw_moment", "speed_ref", "drive_on", "steer_rate")
 """Common commands every plant accepts (front road-wheel angle [rad], direct yaw
-moment [N m], speed reference [m/s], 1 = hold speed with drive torque / 0 = coast)."""
+moment [N m], speed reference [m/s], 1 = hold speed with drive torque / 0 = coast,
+rate of the road-wheel angle command [rad/s]: the feed-forward of a plant with a
+steering servo; plants that take the angle directly ignore it)."""
 
 DISTURBANCES = ("lateral_force", "yaw_moment_dist", "roll_moment_dist", "bank",
                 "mu_fl", "mu_fr", "mu_rl", "mu_rr")
@@ -50,6 +52,8 @@ class PlantModel:
     command_map: Callable
     initial: Callable
     required_params: tuple[str, ...] = ()
+    max_step: Callable | None = None
+    """``max_step(p) -> h``: the largest RK4 step [s] the stiffest mode allows (None: any)."""
 
     def check_params(self, p: VehicleParams) -> None:
         p.require(*self.required_params, model=f"the '{self.name}' plant")

@@ -197,5 +197,5 @@ MODEL = PlantModel(
     name="two-track", description="nonlinear two-track model with roll, wheel spin and combined-slip tires, "
                                   "after seed 000 eq. 5-13",
     states=STATES, inputs=INPUTS, f=f, h=h, command_map=command_map, initial=initial,
-    required_params=REQUIRED,
+    required_params=REQUIRED, max_step=max_stable_step,
 )

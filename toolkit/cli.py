@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from plants import PLANTS, bundled_vehicles, load_vehicle
+from plants import PLANT_SPECS, bundled_vehicles, get_plant, is_multibody, load_vehicle
 from plants.disturbances import Disturbances, Friction, default_wind
 from plants.errors import EvstabError
 from plants.maneuvers import MANEUVERS, make_maneuver
@@ -47,6 +47,19 @@ def _number(kind: str):
 _positive, _nonneg, _finite = _number("positive"), _number("nonneg"), _number("finite")
 
 
+def _plant(text: str) -> str:
+    """argparse type: a plant name (``commonroad-mb:N[:STEER_RATE]`` included), checked by get_plant."""
+    try:
+        return get_plant(text).name
+    except EvstabError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+_PLANT_HELP = ("plant: " + ", ".join(PLANT_SPECS) + " (CommonRoad's multi-body car, parameter set N; "
+               "commonroad-mb:N:RATE sets its road-wheel steering-rate limit in rad/s, default 1.5; its truth is "
+               "the package's set and --vehicle is what estimator and controller believe)")
+
+
 def cmd_vehicles(args) -> int:
     for key in bundled_vehicles():
         p = load_vehicle(key)
@@ -73,7 +86,7 @@ def cmd_simulate(args) -> int:
     if args.plot:
         plot_run(res, args.plot, man)
     tr = res.truth
-    print(f"{p.name} {args.plant} {man.name} {args.speed:g} km/h mu={mu:g}: {len(res.t)} samples "
+    print(f"{p.name} on {args.plant}, {man.name} {args.speed:g} km/h mu={mu:g}: {len(res.t)} samples "
           f"({res.t[-1]:.2f} s); max |yaw rate| {np.degrees(np.abs(tr['yaw_rate']).max()):.2f} deg/s, "
           f"max |sideslip| {np.degrees(np.abs(tr['beta']).max()):.2f} deg, "
           f"max |ay| {np.abs(tr['ay']).max():.2f} m/s^2 -> {args.out}")
@@ -243,8 +256,8 @@ def cmd_fmvss126(args) -> int:
     design = TwoDofDesign(p.as_nominal(), k_beta=args.k_beta, k_gamma=args.k_gamma, yaw_priority=args.yaw_priority,
                           reference_tau=args.reference_tau, friction_margin=args.friction_margin,
                           disturbance_filter_tau=args.disturbance_filter)
-    a_deg, rows, verdict = run_series(p, args.controller, args.estimator, args.mu, quick=args.quick,
-                                      seed=args.seed, design=design)
+    a_deg, rows, verdict = run_series(p, args.controller, args.estimator, args.mu, plant=args.plant,
+                                      quick=args.quick, seed=args.seed, design=design)
     out = Path(args.out)
     keys = list(rows[0])
     lines = [",".join(keys)] + [",".join(str(r[k]).lower() if isinstance(r[k], bool) else
@@ -253,7 +266,7 @@ def cmd_fmvss126(args) -> int:
     atomic_write(out / "fmvss126.csv", lambda fh: fh.write("\n".join(lines) + "\n"))
     atomic_write(out / "verdict.json", lambda fh: fh.write(json.dumps(verdict, indent=2) + "\n"))
     n_pass = sum(r["pass"] for r in rows)
-    print(f"{p.name} FMVSS 126, controller {args.controller}: A = {a_deg:.1f} deg hand-wheel, {n_pass}/{len(rows)} "
+    print(f"{p.name} on {args.plant}, FMVSS 126, controller {args.controller}: A = {a_deg:.1f} deg hand-wheel, {n_pass}/{len(rows)} "
           f"runs pass -> {'PASS' if verdict['pass'] else 'FAIL ' + ', '.join(verdict['failed_criteria'])} ({out})")
     return 0
 
@@ -290,7 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_vehicles)
     sp = sub.add_parser("simulate", help="simulate a manoeuvre and write a drive-log CSV")
     sp.add_argument("--vehicle", required=True, help=f"bundled name ({', '.join(bundled_vehicles())}) or TOML path")
-    sp.add_argument("--plant", choices=list(PLANTS), default="two-track")
+    sp.add_argument("--plant", type=_plant, default="two-track", help=_PLANT_HELP + "; default two-track")
     sp.add_argument("--maneuver", choices=MANEUVERS, required=True)
     sp.add_argument("--speed", type=_nonneg, required=True, help="speed [km/h]")
     sp.add_argument("--amplitude", type=_finite, help="front road-wheel angle amplitude [deg]")
@@ -347,8 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="floating-point type of the C code and the A2L record layouts")
     sp.add_argument("--out", required=True, help="folder to write into")
     sp.set_defaults(func=cmd_export)
-    sp = sub.add_parser("fmvss126", help="FMVSS 126 sine-with-dwell series on the two-track plant")
-    sp.add_argument("--vehicle", required=True)
+    sp = sub.add_parser("fmvss126", help="FMVSS 126: slowly increasing steer for A, then the sine-with-dwell series")
+    sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (the controller's nominal model)")
+    sp.add_argument("--plant", type=_plant, default="two-track", help=_PLANT_HELP + "; default two-track")
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")
     sp.add_argument("--estimator", choices=LOOP_METHODS, default="dakf")
     sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
@@ -362,6 +376,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--disturbance-filter", type=_nonneg, default=0.0, help="low-pass on the disturbance estimates [s]")
     sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")
     sp.set_defaults(func=cmd_fmvss126)
+    sp = sub.add_parser("derive-nominal", help="the nominal vehicle file of a CommonRoad multi-body car "
+                                               "(geometry from its set, cornering stiffness identified)")
+    sp.add_argument("plant", type=_plant, help="commonroad-mb:N")
+    sp.add_argument("--out", required=True, help="vehicle TOML to write")
+    sp.set_defaults(func=cmd_derive_nominal)
     sp = sub.add_parser("design", help="design, analyse, sweep and tune the estimator and controller; write the report")
     sp.add_argument("--vehicle", required=True, help="bundled name or TOML path")
     sp.add_argument("--out", required=True, help="folder for design.json, sweep.csv, report.html, report.md")
@@ -381,6 +400,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--a-deg", type=_positive, help="the vehicle's A [deg hand-wheel], to apply the criteria")
     sp.set_defaults(func=cmd_score_swd)
     return ap
+
+
+def cmd_derive_nominal(args) -> int:
+    from .nominal import write_nominal
+    if not is_multibody(args.plant):
+        raise EvstabError(f"derive-nominal takes a commonroad-mb:N plant, not '{args.plant}'")
+    p = write_nominal(args.plant, args.out)
+    print(f"{args.plant}: m {p.mass:.1f} kg, I_z {p.yaw_inertia:.1f} kg m^2, lf/lr {p.lf:.3f}/{p.lr:.3f} m, "
+          f"C_f/C_r {p.cornering_stiffness_front:.0f}/{p.cornering_stiffness_rear:.0f} N/rad per tyre "
+          f"(identified), K_us {np.degrees(p.understeer_gradient):.3f} deg/(m/s^2) -> {args.out}")
+    return 0
 
 
 def cmd_design(args) -> int:

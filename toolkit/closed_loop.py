@@ -23,7 +23,7 @@ import controllers.actuators as act_mod
 import controllers.two_dof as ctl_mod
 from controllers.actuators import ActuatorLimits, actuator_law
 from controllers.two_dof import TwoDofDesign, control_law
-from plants import DISTURBANCES, TRUTH, VehicleParams, get_plant
+from plants import DISTURBANCES, TRUTH, VehicleParams, get_plant, truth_params
 from plants.backend import CASADI
 from plants.disturbances import Disturbances, Friction, disturbance_profile
 from plants.maneuvers import Maneuver
@@ -156,7 +156,7 @@ def _build(spec: LoopSpec):
     tmax = lim.torque_max if lim.torque_max is not None else (sp.max_motor_torque
                                                               if template.max_motor_torque is not None else 1e9)
     z_act_n, a = actuator_law(sp, lim, tmax, z_act, ca.vertcat(u[0], u[1], 0.0, dt), CASADI)
-    cmd = ca.vertcat(a[0], a[1], speed_ref, drive_on)
+    cmd = ca.vertcat(a[0], a[1], speed_ref, drive_on, (a[0] - applied[0]) / dt)
     x_n, y_k = plant_step(x, cmd, w, pv)
     Zn = ca.vertcat(x_n, z_est_n, z_ctl_n, z_act_n, y_k, a[0], a[1], a[2], a[3], slots_next)
     extra = ca.vertcat(a[0], a[1], steer_drv, u[1], u[2], u[3], beta, r, a[3])
@@ -216,7 +216,7 @@ class LoopProgram:
         x0 = self.model.initial_state(params, maneuver.speed)
         # the truth the sensors read on the first sample, by the numpy form of the same output
         # equation (building a compiled plant per parameter set would cost 80 ms per case)
-        cmd0 = np.array([0.0, 0.0, maneuver.speed, 1.0])
+        cmd0 = np.array([0.0, 0.0, maneuver.speed, 1.0, 0.0])
         y0 = np.asarray(self.model.h(x0, self.model.command_map(cmd0, x0, params), W[:, 0], params), float).ravel()
         sizes = self.sizes
         z0 = np.zeros(sum(sizes))
@@ -332,6 +332,7 @@ def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str =
     sensors = sensors or SensorConfig()
     disturbances = disturbances or Disturbances(friction=Friction(mu=params.mu))
     nom = nominal if nominal is not None else params
+    params = truth_params(plant, params)
     lat = sensors.gps_latency if estimator_latency is None else estimator_latency
     model = get_plant(plant)
     spec = loop_spec(nom, plant=plant, controller=controller, estimator=estimator, sensors=sensors, dt=dt,

@@ -65,10 +65,9 @@ def symbolic_view(p: VehicleParams, names: tuple[str, ...], vec):
 # ------------------------------------------------------------------ functions
 def rk4_substeps(model: PlantModel, p: VehicleParams, dt: float) -> int:
     """Number of RK4 sub-steps per sample that keeps the stiffest mode stable."""
-    from plants import two_track
-    if model.name == "two-track":
-        return max(1, int(np.ceil(dt / two_track.max_stable_step(p))))
-    return 1
+    if model.max_step is None:
+        return 1
+    return max(1, int(np.ceil(dt / model.max_step(p))))
 
 
 def rk4_step(model: PlantModel, p, x, cmd, w, dt: float, n_sub: int):

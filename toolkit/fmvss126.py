@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from plants import G, VehicleParams
+from plants import G, VehicleParams, is_multibody
 from plants.disturbances import Disturbances, Friction
 from plants.maneuvers import ramp_steer, sine_with_dwell
 
-from .simulator import simulate
+from .simulator import RolloverError, check_rollover, simulate
 
 SPEED = 80 / 3.6
 HANDWHEEL_RATE = np.deg2rad(13.5)
@@ -112,15 +112,26 @@ def amplitudes(a_deg: float) -> list[float]:
     return sorted(set(out))
 
 
+def sis_end_handwheel(p: VehicleParams) -> float:
+    """Where the slowly increasing steer stops [rad hand-wheel]: the regulation steers "until a lateral
+    acceleration of approximately 0.5 g is obtained" (S7.6). The ramp is open loop, so it ends at 1.5x
+    the hand-wheel angle the nominal linear model needs for 0.55 g in steady state (2.2x its 0.375 g,
+    the top of the regression window), and at most 270 deg."""
+    ay = 0.55 * G
+    delta = (p.wheelbase / SPEED ** 2 + p.understeer_gradient) * ay
+    return float(min(np.deg2rad(270.0), 1.5 * delta * p.steering_ratio))
+
+
 def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, controller=None,
            estimator: str = "dakf", seed: int = 0) -> float:
     """``A`` [deg hand-wheel] from the slowly increasing steer, averaged over both directions."""
     p.require("steering_ratio", model="FMVSS 126")
     mu = p.mu if mu is None else mu
     vals = []
+    end = sis_end_handwheel(p)
     for direction in (1.0, -1.0):
         rate = direction * HANDWHEEL_RATE / p.steering_ratio
-        man = ramp_steer(SPEED, rate, start=1.0, duration=1.0 + np.deg2rad(270.0) / HANDWHEEL_RATE)
+        man = ramp_steer(SPEED, rate, start=1.0, duration=1.0 + end / HANDWHEEL_RATE)
         r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=seed,
                      controller=controller, estimator=estimator)
         fs = 1.0 / r.meta["dt"]
@@ -157,25 +168,34 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
             man = sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio)
             dist = Disturbances(friction=Friction(mu=mu))
             hw = man.steer(np.arange(int(round(man.duration / 1e-3))) * 1e-3) * p.steering_ratio
-            if controller == "two-dof" and compiled:
-                from .closed_loop import compiled_loop_run
-                r = compiled_loop_run(p, man, plant=plant, estimator=estimator, disturbances=dist, seed=seed,
-                                      design=design)
-                t, yaw_rate, ay = r["t"], r["truth"]["yaw_rate"], r["truth"]["ay"]
-            else:
-                ctl = controller
-                if controller == "two-dof" and design is not None:
-                    from controllers.two_dof import TwoDofController
-                    ctl = TwoDofController(design)
-                r = simulate(p, plant, man, disturbances=dist, seed=seed,
-                             controller=ctl if controller != "none" else None, estimator=estimator)
-                t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
+            try:
+                if controller == "two-dof" and compiled:
+                    from .closed_loop import compiled_loop_run
+                    r = compiled_loop_run(p, man, plant=plant, estimator=estimator, disturbances=dist, seed=seed,
+                                          design=design)
+                    t, yaw_rate, ay = r["t"], r["truth"]["yaw_rate"], r["truth"]["ay"]
+                    if is_multibody(plant):
+                        check_rollover(plant, r["truth"]["roll"], t[1] - t[0], man)
+                else:
+                    ctl = controller
+                    if controller == "two-dof" and design is not None:
+                        from controllers.two_dof import TwoDofController
+                        ctl = TwoDofController(design)
+                    r = simulate(p, plant, man, disturbances=dist, seed=seed,
+                                 controller=ctl if controller != "none" else None, estimator=estimator)
+                    t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
+            except RolloverError as exc:  # fails the run: no criterion can be read off a car on its roof
+                failed_all.add("rollover")
+                nan = float("nan")
+                rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": nan, "yaw_ratio_1_75": nan,
+                             "lateral_displacement_m": nan, "pass": False, "rollover_s": exc.t})
+                continue
             sc = score_swd(t, hw[:len(t)], yaw_rate, ay)
             ok, failed = sc.passes(amp, a_deg)
             failed_all.update(failed)
             rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
                          "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
-                         "pass": ok})
+                         "pass": ok, "rollover_s": float("nan")})
     verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
                "controller": controller if isinstance(controller, str) else type(controller).__name__,
                "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}

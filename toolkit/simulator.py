@@ -20,7 +20,7 @@ from typing import Any, Mapping, Protocol
 
 import numpy as np
 
-from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant
+from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, is_multibody, truth_params
 from plants.disturbances import Disturbances, disturbance_profile
 from plants.errors import EvstabError
 from plants.maneuvers import Maneuver
@@ -33,6 +33,20 @@ from .logio import write_log_csv
 
 class SimulationError(EvstabError, RuntimeError):
     """A run diverged (non-finite state) or was set up inconsistently."""
+
+
+class RolloverError(SimulationError):
+    """The car rolled over (a multi-body car's body roll passed :data:`ROLLOVER`); ``t`` says when."""
+
+    def __init__(self, message: str, t: float):
+        super().__init__(message)
+        self.t = t
+
+
+ROLLOVER = np.deg2rad(45.0)
+"""Body roll [rad] past which a multi-body car has rolled over: on two wheels and beyond its
+tipping angle (atan(t / 2h) is 49-51 deg for the CommonRoad sets), where the model's suspension
+geometry no longer means anything."""
 
 
 class Component(Protocol):
@@ -108,9 +122,11 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     Parameters
     ----------
     params : VehicleParams
-        The vehicle (the truth the plant simulates).
+        The vehicle (the truth the plant simulates). For a ``commonroad-mb:N`` plant the truth
+        is the package's set N (its geometry: :func:`plants.truth_params`), and ``params`` is
+        what the controller and estimator believe unless ``nominal`` is given.
     plant : str or PlantModel
-        ``bicycle``, ``bicycle-roll`` or ``two-track``.
+        ``bicycle``, ``bicycle-roll``, ``two-track`` or ``commonroad-mb:N[:STEER_RATE]``.
     maneuver : Maneuver
         See :mod:`plants.maneuvers`.
     disturbances, sensors : optional
@@ -134,6 +150,9 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         a different set is a model error.
     """
     model = get_plant(plant) if isinstance(plant, str) else plant
+    if is_multibody(model.name):
+        nominal = nominal or params
+        params = truth_params(model.name, params)
     model.check_params(params)
     disturbances = disturbances or Disturbances(friction=_uniform(params.mu))
     sensors = sensors or SensorConfig()
@@ -158,13 +177,18 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
                                             estimator, mu, nominal or params)
     elif maneuver.open_loop:
         cmd[COMMANDS.index("steer")] = maneuver.steer(t)
+        cmd[COMMANDS.index("steer_rate")] = steer_rate(cmd[COMMANDS.index("steer")], dt)
         X, Y = cp.rollout(x0, cmd, W)
     else:
         X, Y = _closed_loop(cp, model, params, maneuver, x0, cmd, W, t)
+    if is_multibody(model.name):
+        check_rollover(model.name, X[model.state_index("roll")], dt, maneuver)
     if not np.all(np.isfinite(X)):
         k = int(np.argmax(~np.all(np.isfinite(X), axis=0)))
         raise SimulationError(f"{model.name} diverged at t = {k * dt:.3f} s ({maneuver.name}, "
                               f"{maneuver.speed * 3.6:.0f} km/h)")
+    if is_multibody(model.name):
+        _check_mb_speed(model, X, dt, maneuver)
     truth = {name: Y[i] for i, name in enumerate(TRUTH)}
     commands = {name: cmd[i] for i, name in enumerate(COMMANDS)}
     dist = {name: W[i] for i, name in enumerate(DISTURBANCES)}
@@ -177,6 +201,36 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
             "maneuver": maneuver.name, "speed_mps": maneuver.speed, "seed": seed, "dt": dt,
             "backend": cp.backend, "rk4_substeps": cp.n_sub, "events": dict(maneuver.events)}
     return SimResult(t=t, truth=truth, commands=commands, disturbances=dist, measurements=meas, meta=meta)
+
+
+def check_rollover(plant: str, roll: np.ndarray, dt: float, maneuver) -> None:
+    """Raise :class:`RolloverError` if the body roll passed :data:`ROLLOVER` (or stopped being a number
+    after passing 30 deg: the model tumbling)."""
+    roll = np.asarray(roll, float)
+    over = ~(np.abs(roll) < ROLLOVER)
+    if np.any(over):
+        k = int(np.argmax(over))
+        if np.isfinite(roll[k]) or np.any(np.abs(roll[:k]) > np.deg2rad(30.0)):
+            raise RolloverError(f"{plant} rolled over at t = {k * dt:.3f} s ({maneuver.name}, "
+                                f"{maneuver.speed * 3.6:.0f} km/h): body roll passed {np.degrees(ROLLOVER):.0f} deg",
+                                k * dt)
+
+
+def _check_mb_speed(model, X, dt, maneuver) -> None:
+    from plants.commonroad_mb import MIN_SPEED
+    vx = X[model.state_index("vx")]
+    if np.any(vx < MIN_SPEED):
+        k = int(np.argmax(vx < MIN_SPEED))
+        raise SimulationError(f"{model.name}: speed fell to {vx[k]:.2f} m/s at t = {k * dt:.3f} s ({maneuver.name}); "
+                              f"the multi-body car runs above {MIN_SPEED:g} m/s (the port has no kinematic "
+                              f"low-speed branch)")
+
+
+def steer_rate(steer: np.ndarray, dt: float) -> np.ndarray:
+    """The steer command's rate as a servo sees it: the backward difference over the last sample
+    (causal, as in a loop where the next command is not known yet); 0 on the first sample."""
+    steer = np.asarray(steer, float)
+    return np.diff(steer, prepend=steer[:1]) / dt
 
 
 def _uniform(mu: float):
@@ -228,7 +282,7 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
     X = np.empty((len(model.states), n + 1))
     Y = np.empty((len(TRUTH), n))
     X[:, 0] = x0
-    _, y_prev = cp.step(x0, np.array([0.0, 0.0, maneuver.speed, 1.0]), W[:, 0])
+    _, y_prev = cp.step(x0, np.array([0.0, 0.0, maneuver.speed, 1.0, 0.0]), W[:, 0])
     hist = np.empty((len(TRUTH), n))
     inputs = {"steer": np.zeros(n), "yaw_moment": np.zeros(n), "bank": W[DISTURBANCES.index("bank")]}
     log_names = None
@@ -277,6 +331,7 @@ def _stability_loop(cp, model, params, maneuver, x0, cmd, W, t, sensors, seed, c
         act_state, a = act.step(act_state, t[k], {"steer": u["steer"], "yaw_moment": u["yaw_moment"], "dt": sig["dt"]})
         flags = {"steer_limited": a["steer_limited"], "yaw_moment_limited": a["yaw_moment_limited"]}
         cmd[0, k], cmd[1, k] = a["steer"], a["yaw_moment"]
+        cmd[4, k] = (a["steer"] - applied[0]) / sig["dt"]
         applied = (a["steer"], a["yaw_moment"])
         for key, val in (("steer_driver", steer_drv[k]), ("yaw_moment_cmd", u["yaw_moment"]),
                          ("beta_ref", u["beta_ref"]), ("yaw_rate_ref", u["yaw_rate_ref"]), ("beta_est", b),
@@ -300,13 +355,14 @@ def _closed_loop(cp, model: PlantModel, params, maneuver, x0, cmd, W, t):
     X[:, 0] = x0
     ix, iy, iyaw = (model.state_index(s) for s in ("x", "y", "yaw"))
     ivx = model.states.index("vx") if "vx" in model.states else None
-    i_steer = COMMANDS.index("steer")
+    i_steer, i_rate = COMMANDS.index("steer"), COMMANDS.index("steer_rate")
     state = driver.initial_state()
     x = x0
     for k in range(n):
         vx = x[ivx] if ivx is not None else cmd[COMMANDS.index("speed_ref"), k]
         state, out = driver.step(state, t[k], {"x": x[ix], "y": x[iy], "yaw": x[iyaw], "vx": vx})
         cmd[i_steer, k] = out["steer"]
+        cmd[i_rate, k] = (out["steer"] - (cmd[i_steer, k - 1] if k else 0.0)) / (t[1] - t[0] if n > 1 else 1.0)
         x, Y[:, k] = cp.step(x, cmd[:, k], W[:, k])
         if not np.all(np.isfinite(x)):
             X[:, k + 1:] = np.nan

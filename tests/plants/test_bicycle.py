@@ -136,7 +136,7 @@ def test_positive_speed_required():
         bicycle.matrices(load_vehicle("compact-ev"), 0.0)
 
 
-@pytest.mark.parametrize("plant", ["bicycle", "bicycle-roll", "two-track"])
+@pytest.mark.parametrize("plant", ["bicycle", "bicycle-roll", "two-track", "commonroad-mb:1"])
 def test_numpy_and_casadi_agree(vehicle, plant, rng):
     model = get_plant(plant)
     nx, nu = len(model.states), len(model.inputs)
@@ -144,7 +144,7 @@ def test_numpy_and_casadi_agree(vehicle, plant, rng):
     F = ca.Function("f", [xs, us, ws], [model.f(xs, us, ws, vehicle), model.h(xs, us, ws, vehicle)])
     for _ in range(20):
         x = model.initial_state(vehicle, 15.0) + 0.05 * rng.standard_normal(nx)
-        u = model.command_map(np.array([0.05 * rng.standard_normal(), 200 * rng.standard_normal(), 15.0, 1.0]),
+        u = model.command_map(np.array([0.05 * rng.standard_normal(), 200 * rng.standard_normal(), 15.0, 1.0, 0.1 * rng.standard_normal()]),
                               x, vehicle)
         w = default_disturbance(0.8) + np.r_[100 * rng.standard_normal(3), 0.02 * rng.standard_normal(), 0, 0, 0, 0]
         fx, hx = F(x, u, w)
@@ -153,12 +153,12 @@ def test_numpy_and_casadi_agree(vehicle, plant, rng):
         np.testing.assert_allclose(np.array(hx).ravel(), model.h(x, u, w, vehicle), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("plant", ["bicycle", "bicycle-roll", "two-track"])
+@pytest.mark.parametrize("plant", ["bicycle", "bicycle-roll", "two-track", "commonroad-mb:1"])
 def test_batched_numpy_evaluation(compact, plant, rng):
     model = get_plant(plant)
     nx = len(model.states)
     X = model.initial_state(compact, 15.0)[:, None] + 0.01 * rng.standard_normal((nx, 7))
-    cmd = np.array([0.02, 0.0, 15.0, 1.0])
+    cmd = np.array([0.02, 0.0, 15.0, 1.0, 0.0])
     cols = [model.f(X[:, j], model.command_map(cmd, X[:, j], compact), default_disturbance(), compact)
             for j in range(7)]
     U = model.command_map(np.repeat(cmd[:, None], 7, axis=1), X, compact)

@@ -29,7 +29,8 @@ def write(tmp_path, text, name="car.toml"):
 
 
 def test_bundled_names():
-    assert set(bundled_vehicles()) == {"micro-ev", "sedan-000", "compact-ev"}
+    assert set(bundled_vehicles()) == {"micro-ev", "sedan-000", "compact-ev", "commonroad-1", "commonroad-2",
+                                       "commonroad-3"}
 
 
 def test_every_bundled_set_cites_a_source(vehicle):

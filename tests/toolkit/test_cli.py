@@ -64,7 +64,7 @@ def test_console_script_runs(tmp_path):
                         "step-steer", "--speed", "80", "--plant", "bicycle", "--out", str(tmp_path / "x.csv")],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert "compact-ev bicycle step-steer" in r.stdout
+    assert "compact-ev on bicycle, step-steer" in r.stdout
 
 
 def test_estimate_writes_method_columns(tmp_path):
@@ -97,7 +97,7 @@ def test_fmvss126_and_score_swd(tmp_path, capsys):
     out = tmp_path / "fm"
     assert main(["fmvss126", "--vehicle", "compact-ev", "--controller", "none", "--quick", "--out", str(out)]) == 0
     rows = (out / "fmvss126.csv").read_text().splitlines()
-    assert rows[0] == "amplitude_deg,direction,yaw_ratio_1_0,yaw_ratio_1_75,lateral_displacement_m,pass"
+    assert rows[0] == "amplitude_deg,direction,yaw_ratio_1_0,yaw_ratio_1_75,lateral_displacement_m,pass,rollover_s"
     assert len(rows) == 5
     verdict = json.loads((out / "verdict.json").read_text())
     assert verdict["pass"] is False and "yaw_ratio_1_0" in verdict["failed_criteria"]  # it spins

@@ -36,7 +36,7 @@ def test_compiled_vm_and_numpy_agree(plant):
     p = load_vehicle("sedan-000")  # needs 2 RK4 sub-steps on the two-track: exercises them
     model = get_plant(plant)
     n = 300
-    cmd = np.zeros((4, n))
+    cmd = np.zeros((len(COMMANDS), n))
     cmd[0] = 0.03 * np.sin(np.arange(n) * 0.02)
     cmd[1] = 300.0
     cmd[2], cmd[3] = 20.0, 1.0
@@ -67,7 +67,7 @@ def test_rollout_chunk_boundaries():
     model = get_plant("bicycle")
     c = CompiledPlant(model, p, 1e-3)
     for n in (1, 1999, 2000, 2001, 4500):
-        cmd = np.zeros((4, n))
+        cmd = np.zeros((len(COMMANDS), n))
         cmd[0], cmd[2] = 0.01, 15.0
         X, Y = c.rollout(np.zeros(5), cmd, default_disturbance())
         assert X.shape == (5, n + 1) and Y.shape == (len(TRUTH), n)
