@@ -182,33 +182,27 @@ def exact_sign(x, o):
     return o.if_else(x > 0, 1.0, o.if_else(x < 0, -1.0, 0.0))
 
 
+def _mf_angle(x, b, c, e, o):
+    """The Magic Formula's angle ``C atan(B x - E (B x - atan(B x)))``."""
+    return c * o.arctan(b * x - e * (b * x - o.arctan(b * x)))
+
+
 def _longitudinal(kappa, gamma, fz, t, o, mu):
-    kappa = -kappa
-    s_hx = t.p_hx1
-    s_vx = fz * t.p_vx1 * mu
-    kappa_x = kappa + s_hx
-    mu_x = t.p_dx1 * (1 - t.p_dx3 * gamma ** 2) * mu
-    c_x = t.p_cx1
-    d_x = mu_x * fz
-    e_x = t.p_ex1
-    k_x = fz * t.p_kx1
-    b_x = k_x / (c_x * d_x)
-    return d_x * o.sin(c_x * o.arctan(b_x * kappa_x - e_x * (b_x * kappa_x - o.arctan(b_x * kappa_x))) + s_vx)
+    kappa_x = -kappa + t.p_hx1  # the package's sign change, then its horizontal shift
+    d_x = t.p_dx1 * (1 - t.p_dx3 * gamma ** 2) * mu * fz
+    b_x = fz * t.p_kx1 / (t.p_cx1 * d_x)
+    # the package adds the vertical shift inside the sine: kept as it is
+    return d_x * o.sin(_mf_angle(kappa_x, b_x, t.p_cx1, t.p_ex1, o) + fz * t.p_vx1 * mu)
 
 
 def _lateral(alpha, gamma, fz, t, o, mu, sign):
     sg = sign(gamma, o)
-    s_hy = sg * (t.p_hy1 + t.p_hy3 * o.fabs(gamma))
-    s_vy = sg * fz * (t.p_vy1 + t.p_vy3 * o.fabs(gamma)) * mu
-    alpha_y = alpha + s_hy
+    alpha_y = alpha + sg * (t.p_hy1 + t.p_hy3 * o.fabs(gamma))
     mu_y = t.p_dy1 * (1 - t.p_dy3 * gamma ** 2) * mu
-    c_y = t.p_cy1
     d_y = mu_y * fz
-    e_y = t.p_ey1
-    k_y = fz * t.p_ky1
-    b_y = k_y / (c_y * d_y)
-    f_y = d_y * o.sin(c_y * o.arctan(b_y * alpha_y - e_y * (b_y * alpha_y - o.arctan(b_y * alpha_y)))) + s_vy
-    return f_y, mu_y
+    b_y = fz * t.p_ky1 / (t.p_cy1 * d_y)
+    s_vy = sg * fz * (t.p_vy1 + t.p_vy3 * o.fabs(gamma)) * mu
+    return d_y * o.sin(_mf_angle(alpha_y, b_y, t.p_cy1, t.p_ey1, o)) + s_vy, mu_y
 
 
 def _longitudinal_comb(kappa, alpha, f0_x, t, o):
