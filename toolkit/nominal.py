@@ -27,8 +27,8 @@ module makes the :class:`~plants.VehicleParams` a designer would write for
 
 from __future__ import annotations
 
+import dataclasses
 import json
-import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -114,8 +114,7 @@ def small_steer_runs(set_id: int, speeds_kmh=FIT_SPEEDS_KMH) -> list[dict]:
     from plants import COMMANDS, TRUTH, default_disturbance
     from .simulator import steer_rate
     model = get_plant(f"commonroad-mb:{set_id}")
-    truth = commonroad_mb.truth_params(set_id) if commonroad_mb.has_bundled(set_id) else \
-        geometry(set_id, 5e4, 5e4)
+    truth = geometry(set_id, 5e4, 5e4)  # the plant's dynamics are the set's; this gives the geometry
     cp = compiled_plant(model, truth, DT)
     runs = []
     q = commonroad_mb.mb_set(set_id).namespace()
@@ -163,7 +162,6 @@ def identify_cornering_stiffness(set_id: int, runs: list[dict] | None = None) ->
     fz_r = q.m * G * q.a / (q.a + q.b) / 2.0
     slope_f, slope_r = abs(q.tire.p_ky1) * fz_f, abs(q.tire.p_ky1) * fz_r
     base = geometry(set_id, slope_f, slope_r)
-    import dataclasses
 
     def model(logc):
         return dataclasses.replace(base, cornering_stiffness_front=float(np.exp(logc[0])),

@@ -362,7 +362,7 @@ def _closed_loop(cp, model: PlantModel, params, maneuver, x0, cmd, W, t):
         vx = x[ivx] if ivx is not None else cmd[COMMANDS.index("speed_ref"), k]
         state, out = driver.step(state, t[k], {"x": x[ix], "y": x[iy], "yaw": x[iyaw], "vx": vx})
         cmd[i_steer, k] = out["steer"]
-        cmd[i_rate, k] = (out["steer"] - (cmd[i_steer, k - 1] if k else 0.0)) / (t[1] - t[0] if n > 1 else 1.0)
+        cmd[i_rate, k] = (out["steer"] - (cmd[i_steer, k - 1] if k else 0.0)) / cp.dt
         x, Y[:, k] = cp.step(x, cmd[:, k], W[:, k])
         if not np.all(np.isfinite(x)):
             X[:, k + 1:] = np.nan

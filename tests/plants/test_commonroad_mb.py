@@ -113,7 +113,6 @@ def test_camber_smoothing_changes_nothing_beyond_0_02_rad(rng):
 def _straight_ay(smooth: bool, dt: float, seconds: float = 1.0):
     """Lateral acceleration of set 1 driving straight at 80 km/h, numpy RK4 on the port."""
     pl = mb._Plant(1, mb.STEER_RATE_DEFAULT)
-    s = pl.set
     x = mb.static_equilibrium(1, mb.STEER_RATE_DEFAULT, 80 / 3.6).copy()
     x[mb.STATES.index("roll")] += 1e-4  # a nudge: cambers around zero
 
