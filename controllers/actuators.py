@@ -77,26 +77,3 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     limited = o.if_else(cut, 1.0, o.if_else(slow, 1.0, 0.0))
     achieved = t_diff_new * p.track_rear / p.wheel_radius
     return o.stack([steer_new, t_diff_new]), o.stack([steer_new, achieved, steer_limited, limited])
-
-
-class Actuators:
-    """Steer and yaw-moment actuators in the step protocol (numpy around :func:`actuator_law`).
-
-    Signals in: ``steer`` and ``yaw_moment`` commands, ``t_mean`` (the driver's
-    mean rear torque, 0 when coasting), ``dt``. Outputs: applied ``steer``,
-    ``yaw_moment`` (achieved), the limit flags and the command ``yaw_moment_cmd``.
-    """
-
-    def __init__(self, params: VehicleParams, limits: ActuatorLimits = ActuatorLimits()):
-        self.p, self.lim = params, limits
-        self.torque_max = limits.torque_max if limits.torque_max is not None else (params.max_motor_torque or 1e9)
-
-    def initial_state(self, steer0: float = 0.0):
-        return np.array([float(steer0), 0.0])
-
-    def step(self, state, t, s):
-        sig = np.array([s["steer"], s["yaw_moment"], s.get("t_mean", 0.0), s["dt"]])
-        z, out = actuator_law(self.p, self.lim, self.torque_max, np.asarray(state, float), sig)
-        res = {name: float(out[i]) for i, name in enumerate(OUTPUTS)}
-        res["yaw_moment_cmd"] = s["yaw_moment"]
-        return z, res

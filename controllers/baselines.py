@@ -1,55 +1,36 @@
-"""Baseline controllers with the same step protocol as :class:`controllers.two_dof.TwoDofController`.
+"""Baseline control law with the same signals as :func:`controllers.two_dof.control_law`.
 
-* :class:`NoControl` — the driver's steer passes through, no yaw moment.
-* :class:`YawRatePI` — yaw-rate-only control through the direct yaw moment:
-  ``N_z = I_z (k_p e + k_i int e)``, ``e = gamma_d - gamma_hat`` (reference model with
-  the friction limit); steer from the driver. ``k_p = 10 1/s``, ``k_i = 25 1/s^2``
-  give a well-damped yaw loop for the nominal car. Conditional integration when the
-  yaw moment is limited.
+:func:`yaw_pi_law` — yaw-rate-only control through the direct yaw moment:
+``N_z = I_z (k_p e + k_i int e)``, ``e = gamma_d - gamma_hat`` against the friction-limited static
+reference of seed 003 eq. 23-24 (:func:`controllers.two_dof.reference`); the steer is the driver's.
+``k_p = 10 1/s``, ``k_i = 25 1/s^2`` give a well-damped yaw loop for the nominal car. Conditional
+integration while the yaw moment is limited; below ``min_speed`` the driver passes through.
+Written once for numpy and casadi, like the 2-DOF law. (No control at all is the ECU's
+pass-through, :class:`toolkit.closed_loop.LoopEcu` kind ``none``.)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from plants.backend import NUMPY, unpack
 
-from plants import VehicleParams
+from .two_dof import SIGNALS, TwoDofDesign, reference
 
-from .reference import ReferenceModel
-
-
-@dataclass(frozen=True)
-class NoControl:
-    """No control; the reference is still computed so that tracking errors can be compared."""
-
-    params: VehicleParams
-    friction_margin: float = 0.85
-
-    def initial_state(self):
-        return None
-
-    def step(self, state, t, s):
-        beta_d, gamma_d = ReferenceModel(self.params, self.friction_margin)(
-            s["steer_driver"], s["speed"], s.get("mu", self.params.mu))
-        return None, {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
+YAW_PI_GAINS = (10.0, 25.0)
+"""(k_p [1/s], k_i [1/s^2]) of :func:`yaw_pi_law`."""
+STATE = ("xi_yaw_rate",)
 
 
-@dataclass(frozen=True)
-class YawRatePI:
-    params: VehicleParams
-    kp: float = 10.0
-    ki: float = 25.0
-    friction_margin: float = 0.85
-    min_speed: float = 3.0
-
-    def initial_state(self):
-        return 0.0
-
-    def step(self, state, t, s):
-        ref = ReferenceModel(self.params, self.friction_margin)
-        beta_d, gamma_d = ref(s["steer_driver"], s["speed"], s.get("mu", self.params.mu))
-        if s["speed"] < self.min_speed:
-            return 0.0, {"steer": s["steer_driver"], "yaw_moment": 0.0, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
-        e = gamma_d - s["yaw_rate"]
-        nz = self.params.yaw_inertia * (self.kp * e + self.ki * state)
-        integ = state if s.get("yaw_moment_limited", 0.0) > 0.5 else state + s["dt"] * e
-        return integ, {"steer": s["steer_driver"], "yaw_moment": nz, "beta_ref": beta_d, "yaw_rate_ref": gamma_d}
+def yaw_pi_law(d: TwoDofDesign, z, sig, o=NUMPY, gains: tuple[float, float] = YAW_PI_GAINS):
+    """``(z, sig) -> (z_next, out)`` with ``sig`` per :data:`controllers.two_dof.SIGNALS` and ``out`` per
+    :data:`controllers.two_dof.OUTPUTS`; ``d`` supplies the nominal model, reference and limits."""
+    s = unpack(sig, SIGNALS)
+    kp, ki = gains
+    vm = o.fmax(s.speed, d.min_speed)
+    beta_ss, gamma_ss, _ = reference(d, vm, s.steer_driver, s.mu, o)
+    e = gamma_ss - s.yaw_rate
+    nmax = d.nz_max
+    nz = d.params.yaw_inertia * (kp * e + ki * z[0])
+    nz = o.fmin(o.fmax(nz, -nmax), nmax)
+    low = s.speed < d.min_speed
+    xi = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, z[0], z[0] + d.dt * e))
+    return o.stack([xi]), o.stack([s.steer_driver, o.if_else(low, 0.0, nz), beta_ss, gamma_ss])

@@ -118,22 +118,7 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     p = d.params
     v = s.speed
     vm = o.fmax(v, d.min_speed)
-    # reference model (seed 003 eq. 23-24) with the friction limit, then the lag
-    # (a design that carries a speed schedule reads the model's coefficients and the reference
-    # gains from its tables: the firmware's arithmetic)
-    if d.schedule is not None:
-        a11, a12, a21, a22, b11, b21, b22, kb, kg = d.schedule.values(vm, o)
-    else:
-        L, g = p.wheelbase, p.stability_factor
-        den = 1.0 + g * vm * vm
-        kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
-        kg = vm / (L * den)
-        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
-    beta_ss, gamma_ss = kb * s.steer_driver, kg * s.steer_driver
-    limit = d.friction_margin * s.mu * G / vm
-    mag = o.fabs(gamma_ss)
-    scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
-    beta_ss, gamma_ss = beta_ss * scale, gamma_ss * scale
+    beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22) = reference(d, vm, s.steer_driver, s.mu, o)
     lag = float(np.exp(-d.dt / d.reference_tau))
     xb, xr = z[2], z[3]
     xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
@@ -168,6 +153,27 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     return z_next, o.stack([delta, nz, xb, xr])
 
 
+def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
+    """The static reference of seed 003 eq. 23-24 with the friction limit ``|gamma_d| <= k_mu mu g / v``
+    at speed ``vm`` (already held at ``min_speed``), and the model's seven coefficients there:
+    ``(beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22))``. A design that carries a speed
+    schedule reads coefficients and reference gains from its tables (the firmware's arithmetic)."""
+    p = d.params
+    if d.schedule is not None:
+        a11, a12, a21, a22, b11, b21, b22, kb, kg = d.schedule.values(vm, o)
+    else:
+        L, g = p.wheelbase, p.stability_factor
+        den = 1.0 + g * vm * vm
+        kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
+        kg = vm / (L * den)
+        a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
+    beta_ss, gamma_ss = kb * steer_driver, kg * steer_driver
+    limit = d.friction_margin * mu * G / vm
+    mag = o.fabs(gamma_ss)
+    scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
+    return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)
+
+
 def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY):
     """Saturation-aware allocation of ``u = (delta, N_z)``, numpy or casadi.
 
@@ -189,33 +195,3 @@ def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY):
     out_delta = o.if_else(nz_sat, delta_a, o.if_else(d_sat, delta_b, delta))
     out_nz = o.if_else(nz_sat, nz_a, o.if_else(d_sat, nz_b, nz))
     return out_delta, out_nz
-
-
-class TwoDofController:
-    """The controller in the simulator's step protocol (numpy around :func:`control_law`).
-
-    Signals in: ``speed``, ``steer_driver`` (road-wheel angle command [rad]),
-    ``beta``, ``yaw_rate`` (estimates or truth), ``d1``, ``d2`` (disturbance
-    estimates, 0 if absent), ``mu`` (friction assumed by the reference), and
-    ``steer_limited``/``yaw_moment_limited`` flags from the actuators of the last
-    sample. Outputs: ``steer`` [rad], ``yaw_moment`` [N m], ``beta_ref``, ``yaw_rate_ref``.
-    """
-
-    def __init__(self, design: TwoDofDesign):
-        self.design = design
-
-    def initial_state(self) -> np.ndarray:
-        return np.zeros(len(STATE))
-
-    def step(self, state, t: float, s: dict):
-        d = self.design
-        sig = np.array([s["speed"], s["steer_driver"], s["beta"], s["yaw_rate"], s.get("d1", 0.0), s.get("d2", 0.0),
-                        s.get("mu", d.params.mu), s.get("steer_limited", 0.0), s.get("yaw_moment_limited", 0.0)])
-        z, out = control_law(d, np.asarray(state, float), sig)
-        return z, {name: float(out[i]) for i, name in enumerate(OUTPUTS)}
-
-    def _allocate(self, u: np.ndarray, speed: float) -> np.ndarray:
-        d = self.design
-        _, _, _, _, b11, b21, b22 = lateral_coefficients(d.params, max(speed, d.min_speed))
-        delta, nz = allocate(d, float(u[0]), float(u[1]), b11, b21, b22)
-        return np.array([float(delta), float(nz)])

@@ -1,13 +1,25 @@
-"""The stability loop compiled: plant, sensors, estimator, controller and actuators in one C call.
+"""The stability loop, closed in one place: :func:`loop_step`.
 
-:func:`compiled_loop_run` integrates exactly the loop that :func:`toolkit.simulator.simulate`
-steps in Python for an open-loop steer manoeuvre (same one-sample sensor delay,
-same noise draws, same component equations: each is written once for numpy and
-casadi), but as one casadi step function rolled out by ``mapaccum`` and compiled
-to C, so a 10 s run at 1 kHz costs milliseconds. Supported: the ``two-dof`` and
-``two-dof-true`` controllers, Kalman-filter estimators, GPS latencies of whole
-samples; the plant may differ from what controller and estimator believe
-(``nominal``), which is what model-error sweeps need.
+One sample of the loop, written once for numpy and casadi:
+
+1. the sensors sample the plant at the start of the period (truth ``h(x_k)`` with the commands
+   applied over the last period; gyro errors, noise, GPS course of the latched truth when a fix
+   arrives ``gps_latency`` late);
+2. the ECU step runs on those readings: the firmware's :func:`toolkit.firmware.ecu.ecu_step`
+   (filter, then the 2-DOF law, speed-scheduled from tables, calibration as run-time inputs),
+   or one of its variants (:class:`LoopEcu`);
+3. the actuators (steer servo lag and limits, motor torque limits and rate) turn the ECU's
+   commands into what is applied over the period (zero-order hold);
+4. the plant is integrated over the period (RK4, ``n_sub`` sub-steps).
+
+Everything that runs a loop runs this function: the simulator evaluates it sample by sample
+(numpy, or the compiled step when a path driver closes an outer loop around it), the compiled
+rollouts trace it once into a casadi function rolled out by ``mapaccum`` and compiled to C
+(sweeps, tuning, FMVSS 126, the soak run), and the stability analysis differentiates the same
+trace (:meth:`LoopProgram.jacobian`, :func:`toolkit.stability.estimator_loop`).
+
+The driver stays outside the step: its road-wheel angle command is an input (``steer_driver``),
+read from an open-loop profile or computed between steps by the path follower.
 """
 
 from __future__ import annotations
@@ -19,226 +31,386 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-import controllers.actuators as act_mod
 import controllers.two_dof as ctl_mod
 from controllers.actuators import ActuatorLimits, actuator_law
-from controllers.two_dof import TwoDofDesign, control_law
-from plants import DISTURBANCES, TRUTH, VehicleParams, get_plant, truth_params
-from plants.backend import CASADI
-from plants.disturbances import Disturbances, Friction, disturbance_profile
+from controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
+from controllers.two_dof import TwoDofDesign
+from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, is_multibody, truth_params
+from plants.backend import CASADI, NUMPY
+from plants.disturbances import Disturbances, disturbance_profile
+from plants.errors import EvstabError, ModelError
 from plants.maneuvers import Maneuver
 from plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
 
-from .compiled import (CFunction, build_step, cache_key, compile_library, numeric_fields, param_vector,
-                       rk4_substeps, symbolic_view, with_fields)
+from .compiled import (CFunction, cache_key, compile_library, numeric_fields, param_vector, rk4_step, rk4_substeps,
+                       symbolic_view, with_fields)
 from .estimation import design_filter
-from .estimation.spec import FilterDesign, NoiseSettings
 from .estimation import kalman as kal_mod
+from .estimation.spec import FilterDesign
+from .firmware.ecu import (FIRMWARE_METHODS, INPUT_NAMES as ECU_INPUTS, OUTPUT_NAMES as ECU_OUTPUTS, EcuDesign,
+                           ecu_control, ecu_estimate)
 
 NOISE = ("steer", "gyro", "roll_gyro", "accel_x", "accel_y", "wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr",
          "speed", "gps_e", "gps_n", "heading")
 EXTRA = ("steer", "yaw_moment", "steer_driver", "yaw_moment_cmd", "beta_ref", "yaw_rate_ref", "beta_est",
-         "yaw_rate_est", "yaw_moment_limited")
-THETA = ("k_beta", "k_gamma", "q_beta", "q_yaw_rate", "q_d1", "q_d2", "gyro_bias", "gyro_scale_error", "mu_assumed")
-"""Run-time parameters of a compiled loop (no recompilation when they change): the design's
-gains and process-noise intensities (what the tuning chooses) and the case's gyro errors and
-the friction the reference assumes. The plant's parameters are run-time too (``p``)."""
+         "yaw_rate_est", "yaw_moment_limited", "steer_cmd", "steer_limited", "steer_limited_last",
+         "yaw_moment_limited_last", "steer_rate")
+"""Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
+MEAS = ("steer", "yaw_moment", "yaw_rate", "roll_rate", "ax", "ay", "wheel_speed_fl", "wheel_speed_fr",
+        "wheel_speed_rl", "wheel_speed_rr", "speed", "gps_valid", "gps_fix", "gps_course", "gps_speed", "gps_heading")
+"""The sensor readings the ECU was given (drive-log columns; GPS entries meaningful where ``gps_fix``)."""
+CASE = ("gyro_bias", "gyro_scale_error", "mu_assumed")
+"""Run-time parameters of a case after the ECU's calibration: the gyro's errors and the friction
+the ECU's reference assumes (an ECU input)."""
 SLOTS = 4
 """GPS fixes in flight at once (latched truth waiting for its latency to pass)."""
 CHUNK = 1000
+CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 
 
+class LoopError(EvstabError, ValueError):
+    """A loop was asked for something it cannot run (named in the message)."""
+
+
+# ------------------------------------------------------------------------ the ECU in the loop
+@dataclass(frozen=True)
+class LoopEcu:
+    """What the loop runs as its ECU.
+
+    ``kind``:
+
+    * ``two-dof`` — the firmware's ECU step (:func:`toolkit.firmware.ecu.ecu_step`): what
+      ``evstab export`` prints as C;
+    * ``none`` — the same filter (its estimates are logged), the driver's steer passed through,
+      no yaw moment;
+    * ``yaw-pi`` — the same filter, yaw-rate PI on the direct yaw moment
+      (:func:`controllers.baselines.yaw_pi_law`), the driver's steer;
+    * ``two-dof-true`` — the 2-DOF law on the true sideslip and yaw rate (no filter): the
+      controller's best case;
+    * ``driver`` — no ECU and no actuators: the driver's steer straight to the plant.
+    """
+
+    kind: str
+    ecu: EcuDesign | None = None
+
+    def __post_init__(self):
+        if self.kind not in CONTROLLERS + ("driver",):
+            raise LoopError(f"unknown controller '{self.kind}'; known: {', '.join(CONTROLLERS)}")
+        if self.kind != "driver" and self.ecu is None:
+            raise LoopError(f"controller '{self.kind}' needs an ECU design")
+
+    @property
+    def has_filter(self) -> bool:
+        return self.kind in ("two-dof", "none", "yaw-pi")
+
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(filter state, controller state) sizes."""
+        if self.kind == "driver":
+            return 0, 0
+        ne = self.ecu.layout["controller"] if self.has_filter else 0
+        nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE)
+        return ne, nc
+
+    @property
+    def n_state(self) -> int:
+        return sum(self.sizes)
+
+    def calibration_names(self) -> tuple[str, ...]:
+        return () if self.ecu is None else tuple(c.name for c in self.ecu.calibration())
+
+    def calibration_values(self) -> np.ndarray:
+        return np.zeros(0) if self.ecu is None else np.array([c.value for c in self.ecu.calibration()])
+
+    def initial_state(self) -> np.ndarray:
+        ne, nc = self.sizes
+        z = np.zeros(ne + nc)
+        if ne:
+            z[:ne] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
+        return z
+
+    def step(self, z, u, truth: dict, cal, o=NUMPY):
+        """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
+        ``cal`` the calibration values (numbers or symbols); ``truth`` is read by ``two-dof-true`` only."""
+        d = self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
+        ne, nc = self.sizes
+        zero = 0.0 * u[0]
+        if self.has_filter:
+            z_est_n, est = ecu_estimate(d, z[0:ne], u, o)
+        else:
+            z_est_n = None
+            est = {"beta": truth["beta"], "yaw_rate": truth["yaw_rate"], "yaw": truth["yaw"], "d1": zero,
+                   "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero}
+        z_ctl = z[ne:ne + nc]
+        if self.kind == "yaw-pi":
+            g = {name: u[i] for i, name in enumerate(ECU_INPUTS)}
+            sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"],
+                           g["mu"], g["steer_limited"], g["yaw_moment_limited"]])
+            z_ctl_n, c = yaw_pi_law(d.controller, z_ctl, sig, o)
+            diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
+            y = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"],
+                         est["beta_std"], est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3]])
+        else:
+            z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
+            if self.kind == "none":  # pass the driver through; keep the reference for comparison
+                ys = [y[i] for i in range(len(ECU_OUTPUTS))]
+                ys[ECU_OUTPUTS.index("steer_cmd")] = u[ECU_INPUTS.index("steer_cmd_driver")]
+                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
+                    ys[ECU_OUTPUTS.index(name)] = zero
+                y = o.stack(ys)
+                z_ctl_n = o.stack([zero, zero] + [z_ctl_n[i] for i in range(2, nc)])
+        z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
+        return z_next, y
+
+
+def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: str | FilterDesign = "dakf",
+             latency: float = 0.0, design: TwoDofDesign | EcuDesign | None = None) -> LoopEcu:
+    """The ECU a loop runs: ``design`` if it is an :class:`EcuDesign` (a design folder's, say),
+    else the firmware ECU made of ``estimator`` (a method designed for ``nominal`` with the GPS
+    ``latency`` it compensates, or a designed filter) and ``design`` (default seed 003's gains),
+    on the speed schedule of ``nominal``."""
+    if kind == "driver":
+        return LoopEcu("driver")
+    if kind not in CONTROLLERS:
+        raise LoopError(f"unknown controller '{kind}'; known: {', '.join(CONTROLLERS)}")
+    if isinstance(design, EcuDesign):
+        return LoopEcu(kind, design)
+    filt = estimator if isinstance(estimator, FilterDesign) else None
+    if filt is None:
+        if estimator not in FIRMWARE_METHODS:
+            raise LoopError(f"the loop runs the ECU step, whose filter is one of {', '.join(FIRMWARE_METHODS)}; "
+                            f"got estimator '{estimator}' (other methods run on logs: evstab estimate)")
+        filt = design_filter(estimator, nominal, dt=dt, latency=latency)
+    ctl = design if design is not None else TwoDofDesign(nominal.as_nominal(), dt=dt)
+    ctl.params.require("track_rear", "wheel_radius", "max_motor_torque", model="the stability loop's ECU "
+                       "(yaw-moment split over the rear motors)")
+    return LoopEcu(kind, EcuDesign.from_designs(filt, ctl))
+
+
+# ------------------------------------------------------------------------------ the loop step
 @dataclass(frozen=True)
 class LoopSpec:
-    """What is compiled into a loop: structure, the designer's beliefs, the sensor set-up.
+    """What is traced into a loop: plant structure, ECU, sensor set-up, actuators.
 
-    Everything that varies across a model-error sweep (plant parameters, speed,
-    friction, GPS rate and latency, gyro errors, gains, noise intensities) is a
-    run-time input, so one compiled library serves a whole sweep.
+    Everything that varies across a sweep (plant parameters, speed, friction, GPS rate and
+    latency, gyro errors, the ECU's calibration: gains and noise intensities) is a run-time
+    input, so one compiled library serves a whole sweep.
     """
 
     plant: str
-    nominal: VehicleParams
-    """What the controller and the estimator believe."""
     fields: tuple[str, ...]
-    """Names of the plant parameter vector (the set numeric fields of the plant's parameters)."""
+    """The plant parameters' set fields (:func:`toolkit.compiled.numeric_fields`): their values are run-time."""
     dt: float
-    controller: str
-    estimator: FilterDesign | None
-    design: TwoDofDesign
+    ecu: LoopEcu
     sensors: SensorConfig
     """Sensor set-up with the run-time parts (latency, gyro bias and scale) zeroed."""
     n_sub: int
+    limits: ActuatorLimits = ActuatorLimits()
 
+    @property
+    def sizes(self) -> list[int]:
+        """Loop state: plant, ECU, actuators (2), applied steer / yaw moment / steer rate (3), limit
+        flags (2), GPS slots."""
+        nx = len(get_plant(self.plant).states)
+        return [nx, self.ecu.n_state, 2, 3, 2, 4 * SLOTS]
 
-def _noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
-    nz = draw_noise(cfg, seed, n)
-    rows = [nz["steer"], nz["gyro"], nz["roll_gyro"], nz["accel"][0], nz["accel"][1], *nz["wheel"], nz["speed"],
-            nz["gps"][0], nz["gps"][1], nz["heading"]]
-    return np.vstack(rows)
+    @property
+    def theta_names(self) -> tuple[str, ...]:
+        return self.ecu.calibration_names() + CASE
+
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the loop-state entries (``plant.*``, ``filter.*``, ``controller.*``, ``actuator.*``,
+        ``applied.*``, ``flag.*``, ``slotJ.*``)."""
+        model = get_plant(self.plant)
+        names = [f"plant.{s}" for s in model.states]
+        ne, nc = self.ecu.sizes
+        if ne:
+            f = self.ecu.ecu.filter
+            lay = kal_mod.layout(f)
+            names += [f"filter.{s}" for s in f.states] + [f"filter.P{i}" for i in range(f.n * f.n)]
+            names += ["filter.rejects", "filter.eps", "filter.init"] + [f"filter.gain{i}" for i in range(f.n)]
+            names += [f"filter.cusum{i}" for i in range(lay["buf"] - lay["cusum"])]
+            names += [f"filter.buf{i}" for i in range(lay["size"] - lay["buf"])]
+        if nc:
+            names += [f"controller.{s}" for s in (YAW_PI_STATE if self.ecu.kind == "yaw-pi" else ctl_mod.STATE)]
+        names += ["actuator.steer", "actuator.torque_diff", "applied.steer", "applied.yaw_moment",
+                  "applied.steer_rate", "flag.steer_limited", "flag.yaw_moment_limited"]
+        names += [f"slot{j}.{k}" for j in range(SLOTS) for k in ("yaw", "vx", "vy", "yaw_rate")]
+        if len(names) != sum(self.sizes):
+            raise LoopError(f"loop state names ({len(names)}) do not match the loop state ({sum(self.sizes)})")
+        return tuple(names)
 
 
 def n_inputs() -> int:
     return 3 + len(DISTURBANCES) + len(NOISE) + 1 + 2 * SLOTS
 
 
-def _build(spec: LoopSpec):
-    model = get_plant(spec.plant)
-    n_sub = spec.n_sub
-    template = spec.nominal
-    plant_step, names = build_step(model, template, spec.dt, n_sub)
-    if names != spec.fields:
-        raise ValueError(f"plant parameter fields differ from the nominal set: {names} vs {spec.fields}")
-    th = ca.SX.sym("theta", len(THETA))
-    thd = {k: th[i] for i, k in enumerate(THETA)}
-    est = spec.estimator
-    if est is not None:
-        est = with_fields(est, noise=with_fields(est.noise, q_beta=thd["q_beta"], q_yaw_rate=thd["q_yaw_rate"],
-                                     q_d1=thd["q_d1"], q_d2=thd["q_d2"]))
-    ctl = with_fields(spec.design, k_beta=thd["k_beta"], k_gamma=thd["k_gamma"])
-    sensors = with_fields(spec.sensors, gyro_bias=thd["gyro_bias"], gyro_scale_error=thd["gyro_scale_error"])
-    lim = ActuatorLimits()
-    nx, nt = len(model.states), len(TRUTH)
-    ne = kal_mod.layout(est)["size"] if est is not None else 0
-    sizes = [nx, ne, len(ctl_mod.STATE), len(act_mod.STATE), nt, 2, 2, 4 * SLOTS]
-    Z = ca.SX.sym("z", sum(sizes))
+def _split(z, sizes):
     parts, o = [], 0
     for s in sizes:
-        parts.append(Z[o:o + s])
+        parts.append(z[o:o + s])
         o += s
-    x, z_est, z_ctl, z_act, y_prev, applied, flags, slots = parts
-    nin = n_inputs()
-    U = ca.SX.sym("u", nin)
-    steer_drv, speed_ref, drive_on = U[0], U[1], U[2]
-    w = U[3:3 + len(DISTURBANCES)]
-    i0 = 3 + len(DISTURBANCES)
-    nzv = U[i0:i0 + len(NOISE)]
-    fix = U[i0 + len(NOISE)]
-    capture = U[i0 + len(NOISE) + 1:i0 + len(NOISE) + 1 + SLOTS]
-    emit = U[i0 + len(NOISE) + 1 + SLOTS:nin]
-    pv = ca.SX.sym("p", len(names))
-    sp = symbolic_view(template, names, pv)
-    tr = {name: y_prev[i] for i, name in enumerate(TRUTH)}
-    nzd = {k: nzv[i] for i, k in enumerate(NOISE)}
-    noise = {"steer": nzd["steer"], "gyro": nzd["gyro"], "roll_gyro": nzd["roll_gyro"], "accel_x": nzd["accel_x"],
-             "accel_y": nzd["accel_y"], "wheel": [nzd[f"wheel_{c}"] for c in ("fl", "fr", "rl", "rr")],
-             "speed": nzd["speed"], "gps_e": nzd["gps_e"], "gps_n": nzd["gps_n"], "heading": nzd["heading"]}
-    inp = {"steer": applied[0], "yaw_moment": applied[1], "bank": w[DISTURBANCES.index("bank")]}
-    radius = sp.wheel_radius if model.name == "two-track" or template.wheel_radius is not None else None
-    now = ca.vertcat(tr["yaw"], tr["vx"], tr["vy"], tr["yaw_rate"])
+    return parts
+
+
+def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
+    """One sample of the loop: ``(z, u, p, theta) -> (z_next, truth, extra, meas)``.
+
+    ``z`` per :attr:`LoopSpec.sizes`; ``u`` = (steer_driver, speed_ref, drive_on, disturbances,
+    standard-normal noise per :data:`NOISE`, fix, GPS capture and emit one-hots); ``sp`` the plant's
+    parameters (a :class:`VehicleParams` or its symbolic view); ``theta`` per
+    :attr:`LoopSpec.theta_names`. Returns the truth at the sample (:data:`plants.TRUTH`, with the
+    commands of the last period), :data:`EXTRA` and :data:`MEAS`.
+    """
+    x, z_ecu, z_act, applied, flags, slots = _split(z, spec.sizes)
+    steer_drv, speed_ref, drive_on = u[0], u[1], u[2]
+    nd = len(DISTURBANCES)
+    w = u[3:3 + nd]
+    i0 = 3 + nd
+    nzd = {k: u[i0 + i] for i, k in enumerate(NOISE)}
+    fix = u[i0 + len(NOISE)]
+    capture = [u[i0 + len(NOISE) + 1 + j] for j in range(SLOTS)]
+    emit = [u[i0 + len(NOISE) + 1 + SLOTS + j] for j in range(SLOTS)]
+    nc = len(spec.ecu.calibration_names())
+    cal = [theta[i] for i in range(nc)]
+    case = {k: theta[nc + i] for i, k in enumerate(CASE)}
+    dt = spec.dt
+
+    # 1. sensors sample the plant at the start of the period
+    cmd_prev = o.stack([applied[0], applied[1], speed_ref, drive_on, applied[2]])
+    y = model.h(x, model.command_map(cmd_prev, x, sp), w, sp)
+    tr = {name: y[i] for i, name in enumerate(TRUTH)}
+    now = [tr["yaw"], tr["vx"], tr["vy"], tr["yaw_rate"]]
     # GPS latency: the truth a fix describes is latched into a slot when it is measured and read
-    # out when the fix arrives (both one-hot inputs computed from the fix times), so the latency
-    # is a run-time input; exact for whole-sample latencies
+    # out when the fix arrives (one-hot inputs computed from the fix times): exact for latencies of
+    # whole samples, and a run-time input
     gps = [0.0 * now[0]] * 4
     nxt = []
     for j in range(SLOTS):
-        slot = slots[4 * j:4 * j + 4]
-        held = capture[j] * now + (1.0 - capture[j]) * slot
-        nxt.append(held)
+        held = [capture[j] * now[i] + (1.0 - capture[j]) * slots[4 * j + i] for i in range(4)]
+        nxt.extend(held)
         gps = [gps[i] + emit[j] * held[i] for i in range(4)]
-    slots_next = ca.vertcat(*nxt)
-    m = readings(tr, inp, noise, tuple(gps), fix, sensors, radius, CASADI)
-    dt = spec.dt
-    if est is not None:
-        valid = m["gps_valid"]
-        u_est = ca.vertcat(dt, m["speed"], m["steer"], m["yaw_moment"], m["yaw_rate"], valid,
-                           valid * m["gps_course"], ca.if_else(fix > 0.5, spec.sensors.gps_hdop, 1.0),
-                           ca.if_else(fix > 0.5, float(spec.sensors.gps_sats), 99.0), m["ay"])
-        z_est_n, y_est = kal_mod.step(est, z_est, u_est, CASADI)
-        beta, r = y_est[0], y_est[1]
-        d1 = y_est[4] if "d1" in est.states else 0.0
-        d2 = y_est[5] if "d2" in est.states else 0.0
+    noise = {"steer": nzd["steer"], "gyro": nzd["gyro"], "roll_gyro": nzd["roll_gyro"], "accel_x": nzd["accel_x"],
+             "accel_y": nzd["accel_y"], "wheel": [nzd[f"wheel_{c}"] for c in ("fl", "fr", "rl", "rr")],
+             "speed": nzd["speed"], "gps_e": nzd["gps_e"], "gps_n": nzd["gps_n"], "heading": nzd["heading"]}
+    sensors = with_fields(spec.sensors, gyro_bias=case["gyro_bias"], gyro_scale_error=case["gyro_scale_error"])
+    radius = sp.wheel_radius if "wheel_radius" in spec.fields else None
+    inp = {"steer": applied[0], "yaw_moment": applied[1], "bank": w[DISTURBANCES.index("bank")]}
+    m = readings(tr, inp, noise, tuple(gps), fix, sensors, radius, o)
+    meas = o.stack([m[k] for k in MEAS])
+
+    # 2. the ECU step
+    ecu = spec.ecu
+    if ecu.kind == "driver":
+        z_ecu_n = z_ecu
+        steer_cmd, nz_cmd = steer_drv, 0.0 * steer_drv
+        beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = 0.0 * steer_drv
     else:
-        z_est_n = z_est
-        beta, r, d1, d2 = tr["beta"], tr["yaw_rate"], 0.0, 0.0
-    sig = ca.vertcat(m["speed"], steer_drv, beta, r, d1, d2, thd["mu_assumed"], flags[0], flags[1])
-    z_ctl_n, u = control_law(ctl, z_ctl, sig, CASADI)
-    tmax = lim.torque_max if lim.torque_max is not None else (sp.max_motor_torque
-                                                              if template.max_motor_torque is not None else 1e9)
-    z_act_n, a = actuator_law(sp, lim, tmax, z_act, ca.vertcat(u[0], u[1], 0.0, dt), CASADI)
-    cmd = ca.vertcat(a[0], a[1], speed_ref, drive_on, (a[0] - applied[0]) / dt)
-    x_n, y_k = plant_step(x, cmd, w, pv)
-    Zn = ca.vertcat(x_n, z_est_n, z_ctl_n, z_act_n, y_k, a[0], a[1], a[2], a[3], slots_next)
-    extra = ca.vertcat(a[0], a[1], steer_drv, u[1], u[2], u[3], beta, r, a[3])
-    step = ca.Function("loop_step", [Z, U, pv, th], [Zn, y_k, extra])
+        valid = m["gps_valid"]
+        g = {"dt": dt + 0.0 * steer_drv, "speed": m["speed"], "steer": m["steer"], "yaw_rate": m["yaw_rate"],
+             "ay": m["ay"], "gps_valid": valid, "gps_course": valid * m["gps_course"],
+             "gps_speed": fix * m["gps_speed"], "gps_hdop": o.if_else(fix > 0.5, spec.sensors.gps_hdop, 1.0),
+             "gps_sats": o.if_else(fix > 0.5, float(spec.sensors.gps_sats), 99.0), "steer_cmd_driver": steer_drv,
+             "yaw_moment_applied": m["yaw_moment"], "steer_limited": flags[0], "yaw_moment_limited": flags[1],
+             "mu": case["mu_assumed"]}
+        z_ecu_n, e = ecu.step(z_ecu, o.stack([g[k] for k in ECU_INPUTS]), tr, cal, o)
+        out = {name: e[i] for i, name in enumerate(ECU_OUTPUTS)}
+        steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
+        beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
+            out["yaw_rate"]
+
+    # 3. actuators
+    if ecu.kind == "driver":
+        z_act_n = z_act
+        a = [steer_drv, 0.0 * steer_drv, 0.0 * steer_drv, 0.0 * steer_drv]
+    else:
+        lim = spec.limits
+        tmax = lim.torque_max if lim.torque_max is not None else (
+            sp.max_motor_torque if "max_motor_torque" in spec.fields else 1e9)
+        z_act_n, av = actuator_law(sp, lim, tmax, z_act, o.stack([steer_cmd, nz_cmd, 0.0 * steer_cmd, dt]), o)
+        a = [av[i] for i in range(4)]
+    rate = (a[0] - applied[0]) / dt
+
+    # 4. the plant over the period
+    cmd = o.stack([a[0], a[1], speed_ref, drive_on, rate])
+    x_n = rk4_step(model, sp, x, cmd, w, dt, spec.n_sub)
+    z_n = o.concat([x_n, z_ecu_n, z_act_n, o.stack([a[0], a[1], rate, a[2], a[3]]), o.stack(nxt)])
+    extra = o.stack([a[0], a[1], steer_drv, nz_cmd, beta_ref, yaw_rate_ref, beta_est, yaw_rate_est, a[3], steer_cmd,
+                     a[2], flags[0], flags[1], rate])
+    return z_n, y, extra, meas
+
+
+def _build(spec: LoopSpec):
+    model = get_plant(spec.plant)
+    sizes = spec.sizes
+    Z = ca.SX.sym("z", sum(sizes))
+    U = ca.SX.sym("u", n_inputs())
+    pv = ca.SX.sym("p", len(spec.fields))
+    th = ca.SX.sym("theta", len(spec.theta_names))
+    sp = symbolic_view(_TEMPLATE, spec.fields, pv)
+    Zn, y, extra, meas = loop_step(spec, model, sp, Z, U, th, CASADI)
+    step = ca.Function("loop_step", [Z, U, pv, th], [Zn, y, extra, meas], ["z", "u", "p", "theta"],
+                       ["z_next", "truth", "extra", "meas"])
     acc = step.mapaccum("loop_acc", CHUNK)
-    z0, Uc = ca.MX.sym("z0", Z.shape[0]), ca.MX.sym("U", nin, CHUNK)
-    pm, tm = ca.MX.sym("p", len(names)), ca.MX.sym("theta", len(THETA))
-    Zs, Ys, Es = acc(z0, Uc, ca.repmat(pm, 1, CHUNK), ca.repmat(tm, 1, CHUNK))
-    chunk = ca.Function("loop_chunk", [z0, Uc, pm, tm], [Zs[:, -1], Ys, Es])
-    return step, chunk, names, sizes, est, nin
+    z0, Uc = ca.MX.sym("z0", Z.shape[0]), ca.MX.sym("U", U.shape[0], CHUNK)
+    pm, tm = ca.MX.sym("p", pv.shape[0]), ca.MX.sym("theta", th.shape[0])
+    Zs, Ys, Es, Ms = acc(z0, Uc, ca.repmat(pm, 1, CHUNK), ca.repmat(tm, 1, CHUNK))
+    chunk = ca.Function("loop_chunk", [z0, Uc, pm, tm], [Zs[:, -1], Ys, Es, Ms])
+    return step, chunk, (Z, U, pv, th, Zn)
 
 
+_TEMPLATE = VehicleParams.__new__(VehicleParams)
+object.__setattr__(_TEMPLATE, "name", "loop")
+object.__setattr__(_TEMPLATE, "source", "")
+"""Stand-in for :func:`toolkit.compiled.symbolic_view`, which reads only the field names and ``name``."""
 _CACHE: dict = {}
 
 
 class LoopProgram:
-    """A compiled loop for one :class:`LoopSpec`; :meth:`run` takes everything that varies by case."""
+    """A loop for one :class:`LoopSpec`, traced and compiled; :meth:`run` takes everything that varies by case."""
 
-    def __init__(self, spec: LoopSpec):
+    def __init__(self, spec: LoopSpec, compile: bool = True):
         self.spec = spec
-        self.step, self.chunk, self.names, self.sizes, self.est, self.nin = _build(spec)
-        key = cache_key("loop", spec, CHUNK, SLOTS)
-        lib = compile_library([self.chunk], key)
-        self.cf = CFunction(ctypes.CDLL(str(lib)), "loop_chunk") if lib is not None else None
+        self.step, self.chunk, self._sym = _build(spec)
         self.model = get_plant(spec.plant)
+        self.sizes = spec.sizes
+        self.names = spec.fields
+        self.nin = n_inputs()
+        self._jac = None
+        self.cf = self.cstep = None
+        if compile:
+            lib = compile_library([self.chunk, self.step], cache_key("loop", spec, CHUNK, SLOTS))
+            if lib is not None:
+                dll = ctypes.CDLL(str(lib))
+                self.cf, self.cstep = CFunction(dll, "loop_chunk"), CFunction(dll, "loop_step")
+        self.backend = "c" if self.cf is not None else "casadi"
 
-    def theta(self, *, k_beta=None, k_gamma=None, noise: NoiseSettings | None = None, gyro_bias: float = 0.0,
-              gyro_scale_error: float = 0.0, mu_assumed: float = 1.0) -> np.ndarray:
-        d = self.spec.design
-        nz = noise or (self.spec.estimator.noise if self.spec.estimator is not None else NoiseSettings())
-        vals = {"k_beta": d.k_beta if k_beta is None else k_beta, "k_gamma": d.k_gamma if k_gamma is None else k_gamma,
-                "q_beta": nz.q_beta, "q_yaw_rate": nz.q_yaw_rate, "q_d1": nz.q_d1, "q_d2": nz.q_d2,
-                "gyro_bias": gyro_bias, "gyro_scale_error": gyro_scale_error, "mu_assumed": mu_assumed}
-        return np.array([float(vals[k]) for k in THETA])
+    def with_spec(self, spec: LoopSpec) -> "LoopProgram":
+        """The same compiled program, with ``spec`` (equal up to calibration) for its defaults."""
+        if traced(spec) != traced(self.spec):
+            raise LoopError("with_spec: the specs differ in more than the calibration")
+        other = object.__new__(LoopProgram)
+        other.__dict__.update(self.__dict__)
+        other.spec = spec
+        return other
+
+    def theta(self, **kw) -> np.ndarray:
+        """See :func:`loop_theta`."""
+        return loop_theta(self.spec, **kw)
 
     def inputs(self, params: VehicleParams, maneuver: Maneuver, disturbances: Disturbances, sensors: SensorConfig,
                seed: int):
-        """(U, z0, p) for a run: the input matrix (samples x inputs), initial loop state, plant parameters."""
-        dt = self.spec.dt
-        n = int(round(maneuver.duration / dt))
-        t = np.arange(n) * dt
-        W = disturbance_profile(disturbances, t)
-        nin = self.nin
-        U = np.zeros((n, nin))
-        U[:, 0] = maneuver.steer(t)
-        U[:, 1] = maneuver.speed
-        U[:, 2] = maneuver.drive_on(t)
-        i0 = 3 + len(DISTURBANCES)
-        U[:, 3:i0] = W.T
-        U[:, i0:i0 + len(NOISE)] = _noise_matrix(sensors, seed, n).T
-        fix = gps_fix_mask(t, sensors)
-        U[:, i0 + len(NOISE)] = fix
-        U[:, i0 + len(NOISE) + 1:] = latch_schedule(fix, sensors.gps_latency, dt).T
-        if rk4_substeps(self.model, params, dt) > self.spec.n_sub:
-            raise ValueError(f"'{params.name}': these plant parameters need {rk4_substeps(self.model, params, dt)} "
-                             f"RK4 sub-steps per sample, the compiled loop has {self.spec.n_sub}")
-        x0 = self.model.initial_state(params, maneuver.speed)
-        # the truth the sensors read on the first sample, by the numpy form of the same output
-        # equation (building a compiled plant per parameter set would cost 80 ms per case)
-        cmd0 = np.array([0.0, 0.0, maneuver.speed, 1.0, 0.0])
-        y0 = np.asarray(self.model.h(x0, self.model.command_map(cmd0, x0, params), W[:, 0], params), float).ravel()
-        sizes = self.sizes
-        z0 = np.zeros(sum(sizes))
-        z0[:sizes[0]] = x0
-        if self.est is not None:
-            z0[sizes[0]:sizes[0] + sizes[1]] = kal_mod.initial_state(self.est, 0.0, 0.0)
-        off = sum(sizes[:4])
-        z0[off:off + len(TRUTH)] = y0
-        first = np.array([y0[TRUTH.index(k)] for k in ("yaw", "vx", "vy", "yaw_rate")])
-        z0[sum(sizes[:7]):] = np.tile(first, SLOTS)
-        names = numeric_fields(params)
-        if names != self.names:
-            raise ValueError(f"'{params.name}': the plant parameters set differ from the compiled loop's "
-                             f"({sorted(set(names) ^ set(self.names))})")
-        return U, z0, param_vector(params, names)
+        """See :func:`loop_inputs`."""
+        return loop_inputs(self.spec, params, maneuver, disturbances, sensors, seed)
 
-    def run(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, final_state: bool = False):
-        """Roll the loop out over ``U``; returns (truth Y, extra E) as samples x signals arrays, and with
-        ``final_state`` the loop state after the last sample too (to continue a run block by block;
-        ``U``'s length must then be a multiple of :data:`CHUNK`, so no padded sample advances it)."""
+    # --- evaluation
+    def run(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, final_state: bool = False,
+            meas: bool = False):
+        """Roll the loop out over ``U``; returns (truth Y, extra E[, readings M]) as samples x signals
+        arrays, and with ``final_state`` the loop state after the last sample too (to continue a run
+        block by block; ``U``'s length must then be a multiple of :data:`CHUNK`)."""
         if final_state and U.shape[0] % CHUNK:
-            raise ValueError(f"final_state needs a multiple of {CHUNK} samples, got {U.shape[0]}")
+            raise LoopError(f"final_state needs a multiple of {CHUNK} samples, got {U.shape[0]}")
         n, nin = U.shape
         n_pad = -(-n // CHUNK) * CHUNK
         Up = np.empty((n_pad, nin))
@@ -246,6 +418,7 @@ class LoopProgram:
         Up[n:] = U[-1]
         Y = np.empty((n_pad, len(TRUTH)))
         E = np.empty((n_pad, len(EXTRA)))
+        M = np.empty((n_pad, len(MEAS)))
         z = np.array(z0, float)
         theta = np.ascontiguousarray(theta, float)
         pv = np.ascontiguousarray(pv, float)
@@ -253,16 +426,142 @@ class LoopProgram:
             zn = np.empty_like(z)
             for s in range(0, n_pad, CHUNK):
                 self.cf([z, Up.ctypes.data + s * Up.strides[0], pv, theta],
-                        [zn, Y.ctypes.data + s * Y.strides[0], E.ctypes.data + s * E.strides[0]])
+                        [zn, Y.ctypes.data + s * Y.strides[0], E.ctypes.data + s * E.strides[0],
+                         M.ctypes.data + s * M.strides[0]])
                 z, zn = zn, z
         else:
             for s in range(0, n_pad, CHUNK):
-                zs, ys, es = self.chunk(z, Up[s:s + CHUNK].T, pv, theta)
+                zs, ys, es, ms = self.chunk(z, Up[s:s + CHUNK].T, pv, theta)
                 z = np.array(zs).ravel()
-                Y[s:s + CHUNK], E[s:s + CHUNK] = np.array(ys).T, np.array(es).T
-        if final_state:
-            return Y[:n], E[:n], z
-        return Y[:n], E[:n]
+                Y[s:s + CHUNK], E[s:s + CHUNK], M[s:s + CHUNK] = np.array(ys).T, np.array(es).T, np.array(ms).T
+        out = (Y[:n], E[:n]) + ((M[:n],) if meas else ())
+        return out + (z,) if final_state else out
+
+    def step_once(self, z, u, pv, theta):
+        """One sample through the compiled step (casadi's VM without a compiler): (z_next, y, e, m)."""
+        if self.cstep is not None:
+            outs = [np.empty(sum(self.sizes)), np.empty(len(TRUTH)), np.empty(len(EXTRA)), np.empty(len(MEAS))]
+            self.cstep([np.ascontiguousarray(z, float), np.ascontiguousarray(u, float), pv, theta], outs)
+            return tuple(outs)
+        return tuple(np.array(v).ravel() for v in self.step(z, u, pv, theta))
+
+    def jacobian(self, keep: list[int] | None = None) -> ca.Function:
+        """``(z, u, p, theta) -> d z_next[keep] / d z[keep]`` (dense; ``keep`` default all): the same
+        traced step, differentiated by casadi."""
+        key = tuple(range(sum(self.sizes))) if keep is None else tuple(keep)
+        if self._jac is None or self._jac[0] != key:
+            Z, U, pv, th, Zn = self._sym
+            rows = ca.vertcat(*[Zn[i] for i in key])
+            J = ca.jacobian(rows, Z)[:, list(key)]
+            self._jac = (key, ca.Function("loop_jac", [Z, U, pv, th], [ca.densify(J)]))
+        return self._jac[1]
+
+
+def run_stepped(spec: LoopSpec, params: VehicleParams, U: np.ndarray, z0: np.ndarray, theta: np.ndarray, *,
+                driver=None, program: LoopProgram | None = None):
+    """The loop one sample at a time, with an outer path-following ``driver`` (a
+    :class:`plants.paths.PathDriver`) setting ``steer_driver`` from the plant state before each
+    step. With ``program`` the compiled step runs; without, :func:`loop_step` in numpy (the
+    reference evaluation). Returns (Y, E, M); a run that stops being finite is cut with NaN."""
+    model = get_plant(spec.plant)
+    n = U.shape[0]
+    Y = np.full((n, len(TRUTH)), np.nan)
+    E = np.full((n, len(EXTRA)), np.nan)
+    M = np.full((n, len(MEAS)), np.nan)
+    nx = spec.sizes[0]
+    ix, iy, iyaw = (model.state_index(s) for s in ("x", "y", "yaw"))
+    ivx = model.states.index("vx") if "vx" in model.states else None
+    drv = driver.initial_state() if driver is not None else None
+    pv = np.ascontiguousarray(param_vector(params, spec.fields), float)
+    theta = np.ascontiguousarray(theta, float)
+    z = np.array(z0, float)
+    U = np.array(U, float)
+    for k in range(n):
+        if driver is not None:
+            x = z[:nx]
+            vx = x[ivx] if ivx is not None else U[k, 1]
+            drv, U[k, 0] = driver.steer(drv, x[ix], x[iy], x[iyaw], vx)
+        if program is not None:
+            z, Y[k], E[k], M[k] = program.step_once(z, U[k], pv, theta)
+        else:
+            z_n, y, e, m = loop_step(spec, model, params, z, U[k], theta, NUMPY)
+            z, Y[k], E[k], M[k] = np.asarray(z_n, float).ravel(), np.ravel(y), np.ravel(e), np.ravel(m)
+        if not np.all(np.isfinite(z)):
+            break
+    return Y, E, M
+
+
+def loop_theta(spec: LoopSpec, *, gyro_bias: float = 0.0, gyro_scale_error: float = 0.0, mu_assumed: float = 1.0,
+               **calibration) -> np.ndarray:
+    """The run-time parameter vector: the ECU's calibration (:meth:`EcuDesign.calibration`; entries
+    given by name replace the design's) and the case's gyro errors and assumed friction."""
+    names = spec.ecu.calibration_names()
+    vals = dict(zip(names, spec.ecu.calibration_values()))
+    over = dict(calibration)
+    unknown = sorted(set(over) - set(names))
+    if unknown:
+        raise LoopError(f"calibration {', '.join(unknown)} not in this ECU's ({', '.join(names)})")
+    vals.update(over)
+    case = {"gyro_bias": gyro_bias, "gyro_scale_error": gyro_scale_error, "mu_assumed": mu_assumed}
+    return np.array([float(vals[k]) for k in names] + [float(case[k]) for k in CASE])
+
+
+def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, disturbances: Disturbances,
+                sensors: SensorConfig, seed: int):
+    """(U, z0, p) for a run: the input matrix (samples x inputs), initial loop state, plant parameters."""
+    dt = spec.dt
+    model = get_plant(spec.plant)
+    n = int(round(maneuver.duration / dt))
+    t = np.arange(n) * dt
+    W = disturbance_profile(disturbances, t)
+    U = np.zeros((n, n_inputs()))
+    if maneuver.open_loop:
+        U[:, 0] = maneuver.steer(t)
+    U[:, 1] = maneuver.speed
+    U[:, 2] = maneuver.drive_on(t)
+    i0 = 3 + len(DISTURBANCES)
+    U[:, 3:i0] = W.T
+    U[:, i0:i0 + len(NOISE)] = noise_matrix(sensors, seed, n).T
+    fix = gps_fix_mask(t, sensors)
+    U[:, i0 + len(NOISE)] = fix
+    U[:, i0 + len(NOISE) + 1:] = latch_schedule(fix, sensors.gps_latency, dt).T
+    need = rk4_substeps(model, params, dt)
+    if need > spec.n_sub:
+        raise LoopError(f"'{params.name}': these plant parameters need {need} RK4 sub-steps per sample, the "
+                        f"loop has {spec.n_sub}")
+    names = numeric_fields(params)
+    if names != spec.fields:
+        raise LoopError(f"'{params.name}': the plant parameters set differ from the loop's "
+                        f"({sorted(set(names) ^ set(spec.fields))})")
+    x0 = model.initial_state(params, maneuver.speed)
+    if maneuver.path is not None:  # start on the path, aligned with it
+        path = maneuver.path
+        x0[model.state_index("x")], x0[model.state_index("y")] = path.x[0], path.y[0]
+        x0[model.state_index("yaw")] = np.arctan2(path.y[1] - path.y[0], path.x[1] - path.x[0])
+    return U, loop_initial_state(spec, x0, params, maneuver.speed, W[:, 0]), param_vector(params, names)
+
+
+def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, w0) -> np.ndarray:
+    """The loop state at the start: plant ``x0``, the ECU's initial state, nothing applied, the
+    GPS slots holding the first sample's truth."""
+    model = get_plant(spec.plant)
+    sizes = spec.sizes
+    z0 = np.zeros(sum(sizes))
+    z0[:sizes[0]] = x0
+    z0[sizes[0]:sizes[0] + sizes[1]] = spec.ecu.initial_state()
+    cmd0 = np.array([0.0, 0.0, speed, 1.0, 0.0])
+    y0 = np.asarray(model.h(x0, model.command_map(cmd0, x0, params), w0, params), float).ravel()
+    first = np.array([y0[TRUTH.index(k)] for k in ("yaw", "vx", "vy", "yaw_rate")])
+    z0[sum(sizes[:5]):] = np.tile(first, SLOTS)
+    return z0
+
+
+def noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
+    """The standard-normal draws of a run, one row per :data:`NOISE` entry (the simulator's streams)."""
+    nz = draw_noise(cfg, seed, n)
+    rows = [nz["steer"], nz["gyro"], nz["roll_gyro"], nz["accel"][0], nz["accel"][1], *nz["wheel"], nz["speed"],
+            nz["gps"][0], nz["gps"][1], nz["heading"]]
+    return np.vstack(rows)
 
 
 def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:
@@ -274,7 +573,7 @@ def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:
     """
     lag = latency / dt
     if abs(lag - round(lag)) > 1e-9 or lag < 0:
-        raise ValueError(f"the compiled loop needs a GPS latency of whole samples >= 0, got {latency} s at dt {dt} s")
+        raise LoopError(f"the loop needs a GPS latency of whole samples >= 0, got {latency} s at dt {dt} s")
     lag = int(round(lag))
     n = len(fix)
     out = np.zeros((2 * SLOTS, n))
@@ -283,65 +582,51 @@ def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:
     for i, (k, c) in enumerate(zip(ks, caps)):
         j = i % SLOTS
         if i >= SLOTS and caps[i] <= ks[i - SLOTS]:
-            raise ValueError(f"GPS latency {latency} s spans more than {SLOTS - 1} fix periods; "
-                             f"the compiled loop holds at most {SLOTS} fixes in flight")
+            raise LoopError(f"GPS latency {latency} s spans more than {SLOTS - 1} fix periods; "
+                            f"the loop holds at most {SLOTS} fixes in flight")
         out[j, c] = 1.0
         out[SLOTS + j, k] = 1.0
     return out
 
 
 def loop_spec(nominal: VehicleParams, *, plant: str = "two-track", controller: str = "two-dof",
-              estimator: str | FilterDesign | None = "dakf", sensors: SensorConfig | None = None, dt: float = 1e-3,
-              design: TwoDofDesign | None = None, estimator_latency: float = 0.0,
-              n_sub: int | None = None) -> LoopSpec:
-    """The compile-time part of a loop (see :class:`LoopSpec`)."""
+              estimator: str | FilterDesign = "dakf", sensors: SensorConfig | None = None, dt: float = 1e-3,
+              design: TwoDofDesign | EcuDesign | None = None, estimator_latency: float = 0.0,
+              n_sub: int | None = None, truth: VehicleParams | None = None,
+              limits: ActuatorLimits = ActuatorLimits()) -> LoopSpec:
+    """The trace-time part of a loop (see :class:`LoopSpec`). ``nominal`` is what the ECU believes;
+    ``truth`` a parameter set of the plant (default: the multi-body set for ``commonroad-mb``
+    plants, else ``nominal``), whose set fields the loop's plant-parameter vector holds."""
     model = get_plant(plant)
     sensors = sensors or SensorConfig()
-    if controller not in ("two-dof", "two-dof-true"):
-        raise ValueError(f"the compiled loop runs the 'two-dof' or 'two-dof-true' controller, not '{controller}'")
-    if controller == "two-dof-true" or estimator is None:
-        est = None
-    elif isinstance(estimator, FilterDesign):
-        est = estimator
-    else:
-        est = design_filter(estimator, nominal, dt=dt, latency=estimator_latency)
-    ctl = design if design is not None else TwoDofDesign(nominal.as_nominal(), dt=dt)
-    base = dataclasses.replace(sensors, gps_latency=0.0, gyro_bias=0.0, gyro_scale_error=0.0)
-    n_sub = n_sub if n_sub is not None else rk4_substeps(model, nominal, dt)
-    return LoopSpec(model.name, nominal, numeric_fields(nominal), float(dt), controller, est, ctl, base, int(n_sub))
+    ecu = loop_ecu(controller, nominal, dt=dt, estimator=estimator, latency=estimator_latency, design=design)
+    template = truth if truth is not None else truth_params(model.name, nominal)
+    # the fix times, outages and latency enter through the inputs, the gyro's errors through theta
+    base = dataclasses.replace(sensors, gps_latency=0.0, gyro_bias=0.0, gyro_scale_error=0.0, gps_rate=5.0,
+                               gps_start=0.0, gps_outages=())
+    n_sub = n_sub if n_sub is not None else rk4_substeps(model, template, dt)
+    return LoopSpec(model.name, numeric_fields(template), float(dt), ecu, base, int(n_sub), limits)
+
+
+def traced(spec: LoopSpec) -> LoopSpec:
+    """``spec`` with the ECU's calibration replaced by placeholders: the calibration is a run-time
+    input, so specs that differ only there share one trace and one compiled library."""
+    if spec.ecu.ecu is None:
+        return spec
+    ecu = spec.ecu.ecu.bind([1.0] * len(spec.ecu.calibration_names()))
+    return dataclasses.replace(spec, ecu=LoopEcu(spec.ecu.kind, ecu))
 
 
 def program(spec: LoopSpec) -> LoopProgram:
-    if spec not in _CACHE:
-        _CACHE[spec] = LoopProgram(spec)
-    return _CACHE[spec]
-
-
-def compiled_loop_run(params: VehicleParams, maneuver: Maneuver, *, plant: str = "two-track",
-                      controller: str = "two-dof", estimator: str | FilterDesign = "dakf",
-                      sensors: SensorConfig | None = None, disturbances: Disturbances | None = None, seed: int = 0,
-                      dt: float = 1e-3, design: TwoDofDesign | None = None, nominal: VehicleParams | None = None,
-                      estimator_latency: float | None = None, mu_assumed: float | None = None) -> dict:
-    """Run the stability loop compiled; returns ``t``, ``truth`` and ``commands`` (as the simulator names them).
-
-    ``estimator_latency`` is the GPS latency the estimator compensates (default: the
-    sensors' true latency, as the simulator assumes).
-    """
-    if not maneuver.open_loop:
-        raise ValueError("the compiled loop takes open-loop steer manoeuvres (no path driver)")
-    sensors = sensors or SensorConfig()
-    disturbances = disturbances or Disturbances(friction=Friction(mu=params.mu))
-    nom = nominal if nominal is not None else params
-    params = truth_params(plant, params)
-    lat = sensors.gps_latency if estimator_latency is None else estimator_latency
-    model = get_plant(plant)
-    spec = loop_spec(nom, plant=plant, controller=controller, estimator=estimator, sensors=sensors, dt=dt,
-                     design=design, estimator_latency=lat, n_sub=rk4_substeps(model, params, dt))
-    prog = program(spec)
-    U, z0, pv = prog.inputs(params, maneuver, disturbances, sensors, seed)
-    theta = prog.theta(gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
-                       mu_assumed=disturbances.friction.mu if mu_assumed is None else mu_assumed)
-    Y, E = prog.run(U, z0, pv, theta)
-    t = np.arange(U.shape[0]) * dt
-    return {"t": t, "truth": {name: Y[:, i] for i, name in enumerate(TRUTH)},
-            "commands": {name: E[:, i] for i, name in enumerate(EXTRA)}}
+    """The (cached) program of ``spec``: traced and compiled once per :func:`traced` spec; its
+    :meth:`LoopProgram.theta` defaults are ``spec``'s own calibration."""
+    key = traced(spec)
+    if key not in _CACHE:
+        _CACHE[key] = LoopProgram(key)
+    base = _CACHE[key]
+    if spec == key:
+        return base
+    prog = _CACHE.get(spec)
+    if prog is None:
+        prog = _CACHE[spec] = _CACHE[key].with_spec(spec)
+    return prog

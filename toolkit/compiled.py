@@ -153,8 +153,8 @@ def cached_library(key: str) -> Path | None:
     return lib if (compiler() is not None and lib.is_file()) else None
 
 
-def compile_library(funcs: list, key: str) -> Path | None:
-    """Generate C for casadi ``funcs``, compile to a cached shared library; None without a compiler."""
+def compile_library(funcs: list, key: str, opt: str = "-O3") -> Path | None:
+    """Generate C for casadi ``funcs``, compile (``opt``) to a cached shared library; None without a compiler."""
     cc = compiler()
     if cc is None:
         return None
@@ -170,7 +170,7 @@ def compile_library(funcs: list, key: str) -> Path | None:
             cg.add(fn)
         cg.generate(tmp + os.sep)
         tmp_lib = Path(tmp) / (name + ".so")
-        res = subprocess.run([cc, "-O3", "-shared", "-fPIC", "-o", str(tmp_lib), str(Path(tmp) / (name + ".c")),
+        res = subprocess.run([cc, opt, "-shared", "-fPIC", "-o", str(tmp_lib), str(Path(tmp) / (name + ".c")),
                               "-lm"], capture_output=True, text=True)
         if res.returncode != 0:
             warnings.warn(f"evstab: C compilation failed, using casadi's virtual machine: {res.stderr[:500]}")

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from plants import G, VehicleParams, is_multibody
+from plants import G, VehicleParams
 from plants.disturbances import Disturbances, Friction
 from plants.maneuvers import ramp_steer, sine_with_dwell
 
-from .simulator import RolloverError, check_rollover, simulate
+from .simulator import RolloverError, simulate
 
 SPEED = 80 / 3.6
 HANDWHEEL_RATE = np.deg2rad(13.5)
@@ -152,10 +152,11 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
                design=None, compiled: bool = True):
     """The sine-with-dwell series. Returns (A in deg, rows, verdict).
 
-    ``controller`` is ``none``, ``yaw-pi`` or ``two-dof`` (``design``: a
-    :class:`controllers.two_dof.TwoDofDesign`, default the paper's). With
-    ``compiled`` the 2-DOF loop runs as one compiled rollout per run
-    (:mod:`toolkit.closed_loop`, equal to the Python-stepped loop to rounding).
+    ``controller`` is ``none`` (the car alone), ``yaw-pi``, ``two-dof`` or ``two-dof-true``, run in
+    the stability loop (:func:`toolkit.closed_loop.loop_step`); ``design`` a
+    :class:`controllers.two_dof.TwoDofDesign` (default the paper's) or a design folder's
+    :class:`toolkit.firmware.ecu.EcuDesign`. ``compiled``: one compiled rollout per run (False: the
+    numpy evaluation of the same step).
     """
     mu = p.mu if mu is None else mu
     a_deg = find_a(p, plant, mu, seed=seed) if a_deg is None else a_deg
@@ -169,21 +170,10 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
             dist = Disturbances(friction=Friction(mu=mu))
             hw = man.steer(np.arange(int(round(man.duration / 1e-3))) * 1e-3) * p.steering_ratio
             try:
-                if controller == "two-dof" and compiled:
-                    from .closed_loop import compiled_loop_run
-                    r = compiled_loop_run(p, man, plant=plant, estimator=estimator, disturbances=dist, seed=seed,
-                                          design=design)
-                    t, yaw_rate, ay = r["t"], r["truth"]["yaw_rate"], r["truth"]["ay"]
-                    if is_multibody(plant):
-                        check_rollover(plant, r["truth"]["roll"], t[1] - t[0], man)
-                else:
-                    ctl = controller
-                    if controller == "two-dof" and design is not None:
-                        from controllers.two_dof import TwoDofController
-                        ctl = TwoDofController(design)
-                    r = simulate(p, plant, man, disturbances=dist, seed=seed,
-                                 controller=ctl if controller != "none" else None, estimator=estimator)
-                    t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
+                r = simulate(p, plant, man, disturbances=dist, seed=seed, compile=compiled,
+                             controller=None if controller == "none" else controller, estimator=estimator,
+                             design=design)
+                t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
             except RolloverError as exc:  # fails the run: no criterion can be read off a car on its roof
                 failed_all.add("rollover")
                 nan = float("nan")
@@ -197,11 +187,12 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
                          "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
                          "pass": ok, "rollover_s": float("nan")})
     verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
-               "controller": controller if isinstance(controller, str) else type(controller).__name__,
+               "controller": controller,
                "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}
     if controller == "two-dof":
         from controllers.two_dof import TwoDofDesign
         d = design if design is not None else TwoDofDesign(p.as_nominal())
+        d = getattr(d, "controller", d)  # an EcuDesign's controller
         verdict["design"] = {k: getattr(d, k) for k in ("k_beta", "k_gamma", "yaw_priority", "reference_tau",
                                                         "friction_margin", "disturbance_filter_tau")}
     return a_deg, rows, verdict

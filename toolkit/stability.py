@@ -10,13 +10,16 @@ Everything returns data (:class:`LoopStability`); nothing prints.
   ``(r, du, dy)`` to ``(u, y, e)`` is stable; with minimal realisations of plant and
   controller that is iff the interconnection's A matrix is Hurwitz.
 * :func:`estimator_loop` — the discrete loop at the control period with the
-  estimator in it: true plant (ZOH), Kalman filter with its steady-state (single
-  rate) or periodic (multi-rate) gains, controller using the estimates including
-  the disturbance-rejection term. The multi-rate loop is analysed through its
-  monodromy matrix over one GPS period (the product of the per-sample closed-loop
-  transition matrices); the loop is stable iff its spectral radius is below 1.
-  The true heading is a pure integrator that feeds nothing (the filter sees it
-  only through ``psi_hat - psi``); it is removed by that change of coordinates.
+  estimator in it, linearised from the loop step itself
+  (:func:`toolkit.closed_loop.loop_step`: sensors, the ECU step with its filter and
+  the 2-DOF law, actuators, the linear bicycle as the true plant): casadi's Jacobians
+  of that step at straight running, multiplied over one GPS period, give the
+  multi-rate monodromy (:func:`loop_linearisation`); the loop is stable iff its
+  spectral radius is below 1. The true heading is a pure integrator that feeds
+  nothing (the filter sees it only through ``psi_hat - psi``); it is removed by that
+  change of coordinates. Equal to the closed-form ZOH/periodic-Kalman construction of
+  the same loop to 4e-12 on the bundled vehicles (the frozen values in
+  ``tests/toolkit/test_stability_loop.py``).
 """
 
 from __future__ import annotations
@@ -25,16 +28,12 @@ from dataclasses import dataclass
 
 import control
 import numpy as np
-import scipy.linalg
 
 from controllers.two_dof import TwoDofDesign
 from plants import VehicleParams
 from plants.bicycle import lateral_matrices
 
-from .estimation.analysis import periodic_gains, steady_state_gain
-from .estimation.kalman import discretize
-from .estimation.spec import FilterDesign, continuous_model
-from plants.backend import NUMPY
+from .estimation.spec import FilterDesign
 
 
 @dataclass(frozen=True)
@@ -84,86 +83,207 @@ def nominal_loop(design: TwoDofDesign, speed: float, true_params: VehicleParams 
     return loop, LoopStability(np.sort_complex(poles), bool(margin > 0), margin, "continuous")
 
 
-def _closed_loop_matrices(design: TwoDofDesign, est: FilterDesign, true_params: VehicleParams, speed: float,
-                          gains: list, dt: float):
-    """Per-sample transition matrices of (beta, r, psi, x_hat, xi) for the given update gains."""
-    A, B = lateral_matrices(true_params, speed)
-    A3 = np.zeros((3, 3))
-    A3[:2, :2] = A
-    A3[2, 1] = 1.0
-    B3 = np.vstack([B, np.zeros((1, 2))])
-    blk = scipy.linalg.expm(np.block([[A3, B3], [np.zeros((2, 5))]]) * dt)
-    Ap, Bp = blk[:3, :3], blk[:3, 3:]
-    Ae, Be = continuous_model(est, speed, NUMPY)
-    F, Gam = discretize(Ae, dt, NUMPY, est.n)
-    G = Gam @ Be
-    n = est.n
-    ib, ir, iy = est.index("beta"), est.index("yaw_rate"), est.index("yaw")
-    S = np.zeros((2, n))
-    S[0, ib], S[1, ir] = 1.0, 1.0
-    Sd = np.zeros((2, n))
-    if "d1" in est.states and design.disturbance_rejection:
-        Sd[0, est.index("d1")], Sd[1, est.index("d2")] = 1.0, 1.0
-    Bi, Kp, Ki, _ = design.gains(speed)
-    # u_k = -(Kp S + Bi Sd) x_hat + Ki xi
-    Ku_x = -(Kp @ S + Bi @ Sd)
-    Ku_xi = Ki
-    # measurements of the truth (gyro r, course beta + psi) and of the model
-    Ct = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 1.0]])
-    H = np.zeros((2, n))
-    H[0, ir] = 1.0
-    if est.bias:
-        H[0, est.index("gyro_bias")] = 1.0
-    H[1, ib], H[1, iy] = 1.0, 1.0
+ANALYSIS_SUBSTEPS = 4
+"""RK4 sub-steps of the linearised loop's plant: at 1 ms the bicycle's fastest modes (|lambda| dt ~ 0.05)
+are then integrated to ~1e-14 per sample, so the monodromy over a GPS period is the exact
+zero-order-hold one to ~1e-11 (one sub-step leaves ~1e-9)."""
+
+
+@dataclass(frozen=True)
+class LoopLinearisation:
+    """The loop step's Jacobians over one GPS period at straight running, and what the analysis kept."""
+
+    monodromy: np.ndarray
+    """Product of the per-sample Jacobians over the feedback core (see :func:`loop_linearisation`), heading removed."""
+    core: tuple[str, ...]
+    """Names of the loop-state entries in the feedback core (the heading one removed)."""
+    outside: np.ndarray
+    """Eigenvalues of the loop states outside the feedback core (sources and sinks of the loop:
+    reference lag, positions, unused GPS slots, logged copies)."""
+    samples: int
+
+
+def kalman_layout(f):
+    from .estimation.kalman import layout
+    return layout(f)
+
+
+def analysis_states(spec) -> list[int]:
+    """Loop-state entries the linearisation keeps: all but the filter's covariance and bookkeeping
+    (gating counter, residual-prediction memory, initialisation flag, bias monitor), which at an
+    equilibrium with zero innovations have zero derivative with respect to the rest."""
+    f = spec.ecu.ecu.filter
+    return [i for i, n in enumerate(spec.state_names())
+            if not (n.startswith("filter.") and n[7:] not in f.states and not n.startswith("filter.buf"))]
+
+
+def _heading_entries(names: list[str]) -> list[int]:
+    """Loop-state entries that carry a heading (a common rotation of the road leaves the loop unchanged)."""
+    return [i for i, n in enumerate(names) if n in ("plant.yaw", "filter.yaw") or n.startswith("filter.buf")
+            or n.endswith(".yaw") and n.startswith("slot")]
+
+
+def _scc_of(S: np.ndarray, seed: int) -> list[int]:
+    """Indices of the strongly connected component of the directed graph ``S[i, j]`` (j -> i) that holds ``seed``."""
+    n = S.shape[0]
+    def reach(adj):
+        seen, stack = {seed}, [seed]
+        while stack:
+            k = stack.pop()
+            for j in np.nonzero(adj[:, k])[0]:
+                if j not in seen:
+                    seen.add(int(j))
+                    stack.append(int(j))
+        return seen
+    fwd = reach(S)      # what seed influences
+    bwd = reach(S.T)    # what influences seed
+    return sorted(fwd & bwd)
+
+
+def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_params: VehicleParams | None = None,
+                gps_rate: float | None = None, dt: float = 1e-3, ideal_actuators: bool = True):
+    """Straight running of the loop on the linear bicycle, the point :func:`loop_linearisation` linearises at:
+    ``(program, z, U, p, theta)`` with ``z`` the loop state at the start of a GPS period (the filter
+    initialised, its covariance at the periodic orbit's last posterior), ``U`` one period of inputs
+    (a fix on its first sample, no noise, no steer)."""
+    from controllers.actuators import ActuatorLimits
+    from plants import DISTURBANCES, get_plant
+    from plants.sensors import SensorConfig
+    from .closed_loop import NOISE, latch_schedule, loop_initial_state, loop_spec, n_inputs, program
+    from .estimation.analysis import discrete_model, periodic_gains, steady_state_gain
+
+    true_params = true_params or design.params
+    rate = 1.0 / dt if gps_rate is None else gps_rate
+    r = int(round(1.0 / (rate * dt)))
+    sensors = SensorConfig(gps_rate=rate, gps_hdop=1.0)  # the filter's course noise at HDOP 1, as designed
+    limits = ActuatorLimits(steer_tau=dt, steer_rate_max=1e9, torque_rate_max=1e12) if ideal_actuators \
+        else ActuatorLimits()
+    spec = loop_spec(design.params, plant="bicycle", controller="two-dof", estimator=est, sensors=sensors, dt=dt,
+                     design=design, truth=true_params, n_sub=ANALYSIS_SUBSTEPS, limits=limits)
+    prog = program(spec)
+    model = get_plant("bicycle")
+    w0 = np.zeros(len(DISTURBANCES))
+    w0[DISTURBANCES.index("mu_fl"):] = true_params.mu
+    z = loop_initial_state(spec, model.initial_state(true_params, speed), true_params, speed, w0)
+    f = spec.ecu.ecu.filter
+    lay = kalman_layout(f)
+    off = spec.sizes[0]
+    if gps_rate is None:
+        _, P = steady_state_gain(f, speed, dt)  # a-priori
+        _, _, C, R = discrete_model(f, speed, dt)
+        P_post = P - P @ C.T @ np.linalg.solve(C @ P @ C.T + R, C @ P)
+    else:
+        _, posts = periodic_gains(f, speed, rate, dt)
+        P_post = posts[-1]
+    z[off + lay["P"]:off + lay["P"] + f.n * f.n] = P_post.ravel(order="F")
+    z[off + lay["init"]] = 1.0
+    U = np.zeros((r, n_inputs()))
+    U[:, 1], U[:, 2] = speed, 1.0
+    U[:, 3:3 + len(DISTURBANCES)] = w0
+    i0 = 3 + len(DISTURBANCES) + len(NOISE)
+    fix = np.zeros(r)
+    fix[0] = 1.0
+    U[:, i0] = fix
+    U[:, i0 + 1:] = latch_schedule(fix, 0.0, dt).T
+    pv = np.array([float(getattr(true_params, k)) for k in spec.fields])
+    return prog, z, U, pv, prog.theta(mu_assumed=true_params.mu)
+
+
+def loop_linearisation(design: TwoDofDesign, est: FilterDesign, speed: float, *,
+                       true_params: VehicleParams | None = None, gps_rate: float | None = None, dt: float = 1e-3,
+                       ideal_actuators: bool = True) -> LoopLinearisation:
+    """Linearise the stability loop (:func:`toolkit.closed_loop.loop_step`, the ECU step in it) at
+    straight running on the linear bicycle ``true_params`` at ``speed``.
+
+    casadi differentiates the traced loop step; the per-sample Jacobians over one GPS period
+    (``gps_rate`` None: a fix every sample, the single-rate loop) are evaluated along the
+    equilibrium, where the filter's covariance runs on its periodic orbit (started from
+    :func:`toolkit.estimation.analysis.periodic_gains`' posterior) and every innovation is zero.
+    At that point the covariance, the gating and monitor states and the filter's bookkeeping
+    have zero derivative with respect to the rest and are left out; of the rest the analysis keeps
+    the feedback core, the strongly connected component of the Jacobians' graph that holds the
+    plant's yaw rate (the other states are sources or sinks: their eigenvalues are
+    :attr:`LoopLinearisation.outside`), and removes the heading, which the loop does not feel
+    (a common rotation of plant, filter and GPS slots is an eigenvector with eigenvalue 1; the
+    change of coordinates ``psi_hat - psi`` drops it). ``ideal_actuators``: the steer servo
+    follows in one sample and no rate limit acts (the idealisation of the analysis; False
+    keeps the loop's actuator lag). Below the controller's ``min_speed`` the ECU passes the driver
+    through: no command depends on the car, and the core is the plant's own lateral modes.
+    """
+    prog, z, U, pv, theta = equilibrium(design, est, speed, true_params=true_params, gps_rate=gps_rate, dt=dt,
+                                        ideal_actuators=ideal_actuators)
+    spec = prog.spec
+    jac = analysis_jacobian(spec)
+    names = list(spec.state_names())
+    r = U.shape[0]
+    keep = analysis_states(spec)
     mats = []
-    N = 3 + n + 2
-    for K in gains:
-        m = K.shape[1]
-        M = np.zeros((N, N))
-        # u in terms of the state
-        U = np.zeros((2, N))
-        U[:, 3:3 + n] = Ku_x
-        U[:, 3 + n:] = Ku_xi
-        X1 = np.zeros((3, N))
-        X1[:, :3] = Ap
-        X1 += Bp @ U
-        Xm = np.zeros((n, N))
-        Xm[:, 3:3 + n] = F
-        Xm += G @ U
-        Xh = Xm + K @ (Ct[:m] @ X1 - H[:m] @ Xm)
-        XI = np.zeros((2, N))
-        XI[:, 3 + n:] = np.eye(2)
-        XI[:, 3:3 + n] -= dt * S
-        M[:3], M[3:3 + n], M[3 + n:] = X1, Xh, XI
-        mats.append(M)
-    # change of coordinates psi_hat -> psi_hat - psi, then drop the true heading
-    T = np.eye(N)
-    T[3 + iy, 2] = -1.0
-    Ti = np.linalg.inv(T)
-    keep = [i for i in range(N) if i != 2]
-    return [(T @ M @ Ti)[np.ix_(keep, keep)] for M in mats]
+    for k in range(r):
+        mats.append(jac(z, U[k], pv, theta))
+        z = prog.step_once(z, U[k], pv, theta)[0]
+    graph = np.zeros(mats[0].shape, bool)
+    for M in mats:
+        graph |= M != 0.0
+    kn = [names[i] for i in keep]
+    core = _scc_of(graph, kn.index("plant.yaw_rate"))
+    Phi = np.eye(len(kn))
+    for M in mats:
+        Phi = M @ Phi
+    rest = [i for i in range(len(kn)) if i not in core]
+    outside = np.linalg.eigvals(Phi[np.ix_(rest, rest)]) if rest else np.zeros(0)
+    Pc = Phi[np.ix_(core, core)]
+    cn = [kn[i] for i in core]
+    if "plant.yaw" not in cn:  # below the controller's min_speed no command depends on the car: open loop
+        return LoopLinearisation(Pc, tuple(cn), outside, r)
+    # heading: z' = z - v psi on every heading entry (T), psi kept; Phi v = v makes psi's column e_psi
+    ipsi = cn.index("plant.yaw")
+    v = np.zeros(len(cn))
+    v[_heading_entries(cn)] = 1.0
+    e = np.eye(len(cn))[ipsi]
+    T, Ti = np.eye(len(cn)) - np.outer(v - e, e), np.eye(len(cn)) + np.outer(v - e, e)
+    red = [i for i in range(len(cn)) if i != ipsi]
+    Pr = (T @ Pc @ Ti)[np.ix_(red, red)]
+    return LoopLinearisation(Pr, tuple(cn[i] for i in red), outside, r)
+
+
+_JAC: dict = {}
+
+
+def analysis_jacobian(spec):
+    """The loop step's Jacobian over :func:`analysis_states` for ``spec``, compiled (cached; at -O1:
+    the derivative code is large and runs a few hundred times per analysis) when a compiler is there."""
+    from .closed_loop import traced
+    spec = traced(spec)
+    if spec not in _JAC:
+        import ctypes
+        from .closed_loop import program
+        from .compiled import CFunction, cache_key, compile_library
+        fn = program(spec).jacobian(analysis_states(spec))
+        lib = compile_library([fn], cache_key("loopjac", spec), opt="-O1")
+        if lib is not None:
+            cf = CFunction(ctypes.CDLL(str(lib)), "loop_jac")
+            n = fn.size1_out(0)
+            def call(z, u, p, th, cf=cf, n=n):
+                out = np.empty((n, n))
+                cf([np.ascontiguousarray(z, float), np.ascontiguousarray(u, float), np.ascontiguousarray(p, float),
+                    np.ascontiguousarray(th, float)], [out])
+                return out.T  # column-major
+            _JAC[spec] = call
+        else:
+            _JAC[spec] = lambda z, u, p, th, fn=fn: np.array(fn(z, u, p, th))
+    return _JAC[spec]
 
 
 def estimator_loop(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_params: VehicleParams | None = None,
                    gps_rate: float | None = None, dt: float = 1e-3):
-    """Discrete loop with the estimator: single rate (``gps_rate=None``) or multi-rate monodromy."""
-    true_params = true_params or design.params
-    if gps_rate is None:
-        K, P = steady_state_gain(est, speed, dt)
-        mats = _closed_loop_matrices(design, est, true_params, speed, [K], dt)
-        eig = np.linalg.eigvals(mats[0])
-        kind = "discrete single-rate (per sample)"
-    else:
-        gains, _ = periodic_gains(est, speed, gps_rate, dt)
-        mats = _closed_loop_matrices(design, est, true_params, speed, gains, dt)
-        Phi = np.eye(mats[0].shape[0])
-        for M in mats:
-            Phi = M @ Phi
-        eig = np.linalg.eigvals(Phi)
-        kind = f"multi-rate monodromy over one GPS period ({len(mats)} samples)"
-        mats = [Phi]
+    """Discrete loop with the estimator: single rate (``gps_rate=None``) or multi-rate monodromy,
+    from the loop step's Jacobians (:func:`loop_linearisation`). Returns ([monodromy], stability)."""
+    lin = loop_linearisation(design, est, speed, true_params=true_params, gps_rate=gps_rate, dt=dt)
+    eig = np.linalg.eigvals(lin.monodromy)
+    kind = ("discrete single-rate (per sample)" if gps_rate is None
+            else f"multi-rate monodromy over one GPS period ({lin.samples} samples)")
     rho = float(np.max(np.abs(eig)))
-    return mats, LoopStability(eig, bool(rho < 1.0), 1.0 - rho, kind)
+    return [lin.monodromy], LoopStability(eig, bool(rho < 1.0), 1.0 - rho, kind)
 
 
 @dataclass(frozen=True)

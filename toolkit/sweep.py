@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.two_dof import TwoDofDesign
-from plants import TRUTH, VehicleParams
+from plants import TRUTH, VehicleParams, is_multibody, truth_params
 from plants.disturbances import Disturbances, Friction
 from plants.maneuvers import Maneuver, sine_lane_change, step_steer, steer_for_lateral_acceleration
 from plants.sensors import SensorConfig
@@ -112,6 +112,10 @@ class DesignPoint:
     def vector(self) -> np.ndarray:
         return np.array([getattr(self, k) for k in self.TUNED])
 
+    def calibration(self) -> dict:
+        """The ECU calibration entries this point sets (:meth:`toolkit.firmware.ecu.EcuDesign.calibration` names)."""
+        return {k: float(getattr(self, k)) for k in self.TUNED}
+
     def noise(self, base: NoiseSettings | None = None) -> NoiseSettings:
         return dataclasses.replace(base or NoiseSettings(), q_beta=self.q_beta, q_yaw_rate=self.q_yaw_rate,
                                    q_d1=self.q_d1, q_d2=self.q_d2)
@@ -192,7 +196,7 @@ def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bo
 def case_inputs(cfg: SweepConfig, case: Case):
     """Per manoeuvre: (U, z0, p) for the compiled loop, and the theta entries of the case."""
     prog = program(cfg.spec())
-    true = case.plant_params(cfg.nominal)
+    true = truth_params(cfg.plant, case.plant_params(cfg.nominal))
     sens = case.sensors(cfg.sensors)
     dist = Disturbances(friction=Friction(mu=case.mu))
     runs = [prog.inputs(true, man, dist, sens, case.seed) for man in standard_maneuvers(cfg, case.speed_kmh / 3.6)]
@@ -205,8 +209,8 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint], *, li
     nz_max = cfg.base_design().nz_max
     rows = []
     for point in points:
-        theta = prog.theta(k_beta=point.k_beta, k_gamma=point.k_gamma, noise=point.noise(),
-                           gyro_bias=case.gyro_bias, gyro_scale_error=case.gyro_scale_error, mu_assumed=case.mu)
+        theta = prog.theta(**point.calibration(), gyro_bias=case.gyro_bias, gyro_scale_error=case.gyro_scale_error,
+                           mu_assumed=case.mu)
         terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
         it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
         for U, z0, pv in runs:
@@ -320,12 +324,18 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, desc="sweep", unit="case", disable=not enabled, leave=False)
 
 
-def sweep_cases(quick: bool = False, seed: int = 7) -> list[Case]:
+def sweep_cases(quick: bool = False, seed: int = 7, plant: str = "two-track") -> list[Case]:
     """The sweep's cases: a front x rear stiffness grid, one-at-a-time axes, random combinations.
 
-    Ranges (issue 5): stiffness -40..+40 %, mu 0.3..1, mass and yaw inertia +-20 %, speed,
-    GPS 1..20 Hz, latency 0..150 ms, gyro bias +-5 mrad/s and scale error +-2 %.
+    Ranges: stiffness -40..+40 %, mu 0.3..1, mass and yaw inertia +-20 %, speed, GPS 1..20 Hz,
+    latency 0..150 ms, gyro bias +-5 mrad/s and scale error +-2 %. On a ``commonroad-mb`` plant
+    the car is the package's set, whatever the nominal says: its model error is fixed (the
+    nominal file against the multi-body car), so the stiffness grid and the mass and inertia
+    axes are left out and the random cases draw only friction, speed, GPS and gyro errors.
     """
+    if is_multibody(plant):
+        return [dataclasses.replace(c, cf_scale=1.0, cr_scale=1.0, mass_scale=1.0, inertia_scale=1.0)
+                for c in sweep_cases(quick, seed) if c.group not in ("stiffness", "mass_scale", "inertia_scale")]
     cases: list[Case] = []
 
     def add(group, **kw):

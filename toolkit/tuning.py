@@ -59,10 +59,16 @@ def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
     U = ca.MX.sym("U", prog.nin, n)
     z0 = ca.MX.sym("z0", sum(prog.sizes))
     pv = ca.MX.sym("p", len(prog.names))
-    rest = ca.MX.sym("rest", 3)  # gyro_bias, gyro_scale_error, mu_assumed
-    th = ca.vertcat(ca.exp(phi), rest)
+    rest = ca.MX.sym("rest", len(closed_loop.CASE))  # gyro_bias, gyro_scale_error, mu_assumed
+    # the loop's run-time parameters: the ECU's calibration with the tuned entries from phi
+    base = prog.theta()
+    names = prog.spec.theta_names
+    tuned = {k: j for j, k in enumerate(DesignPoint.TUNED)}
+    nc = len(names) - len(closed_loop.CASE)
+    th = ca.vertcat(*[ca.exp(phi[tuned[k]]) if k in tuned else float(base[i]) for i, k in enumerate(names[:nc])],
+                    rest)
     acc = prog.step.mapaccum("tune_acc", n)
-    _, Ys, Es = acc(z0, U, ca.repmat(pv, 1, n), ca.repmat(th, 1, n))
+    _, Ys, Es, _ = acc(z0, U, ca.repmat(pv, 1, n), ca.repmat(th, 1, n))
     it = {k: i for i, k in enumerate(TRUTH)}
     ie = {k: i for i, k in enumerate(closed_loop.EXTRA)}
     e_est = Es[ie["beta_est"], :] - Ys[it["beta"], :]

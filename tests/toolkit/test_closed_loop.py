@@ -1,57 +1,121 @@
-"""The compiled stability loop equals the loop the simulator steps in Python."""
+"""The loop is closed once (``toolkit.closed_loop.loop_step``): everyone runs that step, and its
+compiled form equals its numpy form."""
+
+import dataclasses
 
 import numpy as np
 import pytest
 
 from plants import load_vehicle
 from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import sine_with_dwell, step_steer
+from plants.maneuvers import Maneuver, iso3888_1, step_steer
 from plants.sensors import SensorConfig
-from toolkit.closed_loop import compiled_loop_run
+from toolkit import closed_loop, stability
+from toolkit.closed_loop import LoopError
+from toolkit.estimation import design_filter
 from toolkit.simulator import simulate
 
 
-@pytest.mark.parametrize("controller", ["two-dof", "two-dof-true"])
-def test_compiled_loop_matches_python_loop(controller):
+def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(monkeypatch):
+    from controllers.two_dof import TwoDofDesign
+    calls = []
+    original = closed_loop.loop_step
+
+    def spy(spec, model, sp, z, u, theta, o=closed_loop.NUMPY):
+        calls.append(o)
+        return original(spec, model, sp, z, u, theta, o)
+
+    monkeypatch.setattr(closed_loop, "loop_step", spy)
+    monkeypatch.setattr(closed_loop, "_CACHE", {})
+    monkeypatch.setattr(stability, "_JAC", {})
     p = load_vehicle("micro-ev")
-    man = step_steer(25 / 3.6, np.radians(5.0), start=1.0, duration=4.0)
-    dist = Disturbances(wind=default_wind(p, 2.0, 3.0))
-    sens = SensorConfig(gyro_bias=0.002, gps_outages=((2.5, 3.0),))
-    r = compiled_loop_run(p, man, controller=controller, disturbances=dist, sensors=sens, seed=3)
-    s = simulate(p, "two-track", man, controller=controller, disturbances=dist, sensors=sens, seed=3)
-    # same equations, same noise, same order: only floating-point evaluation order differs
-    for k in ("beta", "yaw_rate", "vx", "yaw"):
-        np.testing.assert_allclose(r["truth"][k], s.truth[k], rtol=0, atol=1e-9, err_msg=k)
+    man = step_steer(25 / 3.6, np.radians(3.0), start=0.1, duration=0.05)
+    simulate(p, "two-track", man, controller="two-dof", compile=False)  # numpy, sample by sample
+    assert len(calls) == 50
+    simulate(p, "two-track", man, controller="two-dof")  # traced once, compiled
+    assert len(calls) == 51
+    simulate(p, "two-track", iso3888_1(25 / 3.6, p.width), controller="none")  # path driver: same trace kind
+    assert len(calls) == 52
+    stability.estimator_loop(TwoDofDesign(p.as_nominal()), design_filter("dakf", p), 10.0, gps_rate=5.0)
+    assert len(calls) == 53  # the analysis traced the same step (bicycle truth) and differentiated it
+
+
+@pytest.mark.parametrize("controller", ["two-dof", "two-dof-true", "yaw-pi", "none"])
+def test_compiled_loop_equals_numpy_loop(controller):
+    p = load_vehicle("micro-ev")
+    man = step_steer(25 / 3.6, np.radians(5.0), start=0.3, duration=1.5)
+    dist = Disturbances(wind=default_wind(p, 0.5, 1.0))
+    sens = SensorConfig(gyro_bias=0.002, gps_outages=((0.8, 1.1),))
+    r = simulate(p, "two-track", man, controller=controller, disturbances=dist, sensors=sens, seed=3)
+    s = simulate(p, "two-track", man, controller=controller, disturbances=dist, sensors=sens, seed=3, compile=False)
+    # same equations, same noise, same order; C from casadi against numpy: evaluation order only
+    for k in ("beta", "yaw_rate", "vx", "yaw", "ay"):
+        np.testing.assert_allclose(r.truth[k], s.truth[k], rtol=0, atol=1e-9, err_msg=k)
     for k in ("steer", "beta_est", "yaw_rate_ref"):
-        np.testing.assert_allclose(r["commands"][k], s.commands[k], rtol=0, atol=1e-9, err_msg=k)
-    np.testing.assert_allclose(r["commands"]["yaw_moment"], s.commands["yaw_moment"], rtol=0, atol=1e-6)  # N m
+        np.testing.assert_allclose(r.commands[k], s.commands[k], rtol=0, atol=1e-9, err_msg=k)
+    np.testing.assert_allclose(r.commands["yaw_moment"], s.commands["yaw_moment"], rtol=0, atol=1e-6)  # N m
+    np.testing.assert_allclose(r.measurements["gps_course"], s.measurements["gps_course"], rtol=0, atol=1e-12,
+                               equal_nan=True)
+    if controller == "none":
+        np.testing.assert_array_equal(r.commands["yaw_moment_cmd"], 0.0)
+        np.testing.assert_allclose(r.commands["steer_cmd"], r.commands["steer_driver"], rtol=0, atol=0)
+    else:
+        assert np.max(np.abs(r.commands["yaw_moment"])) > 1.0  # the controller acted
 
 
-def test_compiled_loop_at_the_limit_matches_too():
-    # the saturating FMVSS case, where every branch (limits, allocation, gating) is exercised
-    p = load_vehicle("compact-ev")
-    man = sine_with_dwell(80 / 3.6, np.radians(5 * 22.13) / p.steering_ratio)
-    r = compiled_loop_run(p, man)
-    s = simulate(p, "two-track", man, controller="two-dof")
-    # a spinning car amplifies rounding differences; 1e-6 rad over 6 s of a spin
-    np.testing.assert_allclose(r["truth"]["yaw_rate"], s.truth["yaw_rate"], rtol=0, atol=1e-6)
-
-
-def test_compiled_loop_rejects_what_it_cannot_do():
+def test_path_driver_around_the_loop_compiled_equals_numpy():
     p = load_vehicle("micro-ev")
-    with pytest.raises(ValueError, match="latency"):
-        compiled_loop_run(p, step_steer(7.0, 0.05), sensors=SensorConfig(gps_latency=0.0105))
+    full = iso3888_1(25 / 3.6, p.width)
+    man = dataclasses.replace(full, duration=1.0)
+    r = simulate(p, "two-track", man, controller="two-dof", seed=1)
+    s = simulate(p, "two-track", man, controller="two-dof", seed=1, compile=False)
+    np.testing.assert_allclose(r.truth["y"], s.truth["y"], rtol=0, atol=1e-9)  # m, rounding only
+    np.testing.assert_allclose(r.commands["steer_driver"], s.commands["steer_driver"], rtol=0, atol=1e-9)
 
 
-def test_compiled_loop_with_model_error_and_latency_matches_python_loop():
-    import dataclasses
+def test_loop_with_model_error_and_latency_compiled_equals_numpy():
     p = load_vehicle("compact-ev")
     true = dataclasses.replace(p, cornering_stiffness_front=0.7 * p.cornering_stiffness_front,
                                cornering_stiffness_rear=0.7 * p.cornering_stiffness_rear, mass=1.1 * p.mass)
-    man = step_steer(60 / 3.6, np.radians(2.0), start=1.0, duration=3.0)
+    man = step_steer(60 / 3.6, np.radians(2.0), start=0.3, duration=1.2)
     sens = SensorConfig(gps_latency=0.05, gyro_bias=0.003, gyro_scale_error=0.01)
-    r = compiled_loop_run(true, man, sensors=sens, nominal=p, seed=2)
-    s = simulate(true, "two-track", man, controller="two-dof", sensors=sens, nominal=p, seed=2)
+    r = simulate(true, "two-track", man, controller="two-dof", sensors=sens, nominal=p, seed=2)
+    s = simulate(true, "two-track", man, controller="two-dof", sensors=sens, nominal=p, seed=2, compile=False)
     for k in ("beta", "yaw_rate"):
-        np.testing.assert_allclose(r["truth"][k], s.truth[k], rtol=0, atol=1e-9, err_msg=k)  # rounding only
-    np.testing.assert_allclose(r["commands"]["beta_est"], s.commands["beta_est"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(r.truth[k], s.truth[k], rtol=0, atol=1e-9, err_msg=k)  # rounding only
+    np.testing.assert_allclose(r.commands["beta_est"], s.commands["beta_est"], rtol=0, atol=1e-9)
+
+
+def test_the_loop_refuses_what_it_cannot_do():
+    p = load_vehicle("micro-ev")
+    man = step_steer(7.0, 0.05, duration=0.5)
+    with pytest.raises(LoopError, match="latency"):
+        simulate(p, "two-track", man, controller="two-dof", sensors=SensorConfig(gps_latency=0.0105))
+    with pytest.raises(LoopError, match="double-layer"):
+        simulate(p, "two-track", man, controller="two-dof", estimator="double-layer")
+    with pytest.raises(Exception, match="max_motor_torque"):
+        simulate(load_vehicle("sedan-000"), "two-track", man, controller="two-dof")
+
+
+def test_sensors_sample_the_plant_at_the_start_of_the_period():
+    # the ECU's gyro reading at sample k is the plant's yaw rate at t_k (no extra sample of delay),
+    # the same instant the logged truth describes
+    p = load_vehicle("micro-ev")
+    man = step_steer(25 / 3.6, np.radians(5.0), start=0.1, duration=0.6)
+    sens = SensorConfig(gyro_noise=0.0)
+    r = simulate(p, "two-track", man, controller="two-dof", sensors=sens)
+    np.testing.assert_allclose(r.measurements["yaw_rate"], r.truth["yaw_rate"], rtol=0, atol=1e-15)
+
+
+def test_a_design_folder_ecu_runs_in_the_loop():
+    # an EcuDesign (what `evstab export` prints) runs as the loop's ECU, with its own calibration
+    from controllers.two_dof import TwoDofDesign
+    from toolkit.firmware.ecu import EcuDesign
+    p = load_vehicle("micro-ev")
+    ecu = EcuDesign.from_designs(design_filter("dakf", p), TwoDofDesign(p.as_nominal(), k_beta=9.0))
+    man = step_steer(25 / 3.6, np.radians(4.0), start=0.2, duration=1.0)
+    a = simulate(p, "two-track", man, controller="two-dof", design=ecu)
+    b = simulate(p, "two-track", man, controller="two-dof", design=TwoDofDesign(p.as_nominal(), k_beta=9.0))
+    np.testing.assert_array_equal(a.truth["beta"], b.truth["beta"])  # the same ECU, built two ways
+    c = simulate(p, "two-track", man, controller="two-dof")
+    assert np.max(np.abs(a.commands["yaw_moment"] - c.commands["yaw_moment"])) > 1.0  # K_beta 9 is not 5

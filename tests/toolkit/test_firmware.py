@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from controllers.schedule import ROWS, SpeedSchedule
-from controllers.two_dof import TwoDofController, TwoDofDesign
+from controllers.two_dof import TwoDofDesign
 from plants import load_vehicle
 from plants.backend import CASADI
 from plants.bicycle import lateral_coefficients
@@ -70,7 +70,7 @@ def closed_loop(ecu, tmp_path_factory):
     p = load_vehicle("compact-ev")
     man = make_maneuver("sine-lane-change", p, 60 / 3.6, np.radians(3.0))
     res = simulate(p, "two-track", man, sensors=SensorConfig(gps_outages=((2.0, 4.0),)), seed=7,
-                   controller=TwoDofController(ecu.controller), estimator=ecu.filter,
+                   controller="two-dof", design=ecu,
                    disturbances=Disturbances(wind=default_wind(p), friction=Friction(mu=MU)))
     path = tmp_path_factory.mktemp("logs") / "closed_loop.csv"
     res.write_csv(path)

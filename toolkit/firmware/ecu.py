@@ -228,20 +228,19 @@ class _Rows:
         return self.rows
 
 
-def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
-    """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
-
-    ``sched``: the 18 values of :meth:`EcuDesign.schedule_inputs` for this step (numbers
-    or symbols); None reads the schedule here. ``with_course=False`` leaves out the course
-    update (exact on a step without a fix, see :func:`kalman.step`).
-    """
+def with_schedule_rows(d: EcuDesign, sched) -> EcuDesign:
+    """``d`` with both schedules replaced by rows already read at this step's speed (``sched``: the
+    18 values of :meth:`EcuDesign.schedule_inputs`, numbers or symbols); None keeps the tables."""
+    if sched is None:
+        return d
     nr = len(ROWS)
-    if sched is not None:
-        d = with_fields(d, filter=with_fields(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
-                  controller=with_fields(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
-    lay = d.layout
-    ne = lay["controller"]
-    z_est, z_ctl = z[0:ne], z[ne:lay["size"]]
+    return with_fields(d, filter=with_fields(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
+                       controller=with_fields(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
+
+
+def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
+    """The filter part of the step: ``(z_est, u) -> (z_est_next, estimates)``, estimates a dict of
+    ``beta, yaw_rate, yaw, d1, d2, gyro_bias, beta_std, gps_used`` (0 for states the filter lacks)."""
     g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
     valid = g["gps_valid"]
     u_est = o.stack([g["dt"], g["speed"], g["steer"], g["yaw_moment_applied"], g["yaw_rate"], valid,
@@ -249,15 +248,38 @@ def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
     z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course)
     est = dict(zip(kalman.OUTPUTS, (y[i] for i in range(len(kalman.OUTPUTS)))))
     zero = 0.0 * g["speed"]
-    d1 = est["d1"] if "d1" in d.filter.states else zero
-    d2 = est["d2"] if "d2" in d.filter.states else zero
-    bias = est["gyro_bias"] if d.filter.bias else zero
-    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], d1, d2, g["mu"],
+    for name, present in (("d1", "d1" in d.filter.states), ("d2", "d2" in d.filter.states),
+                          ("gyro_bias", d.filter.bias)):
+        if not present:
+            est[name] = zero
+    return z_est_n, est
+
+
+def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
+    """The controller part of the step: ``(z_ctl, u, estimates) -> (z_ctl_next, y)``, ``y`` per
+    :data:`OUTPUTS` (the estimates are passed through to it)."""
+    g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
+    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"], g["mu"],
                    g["steer_limited"], g["yaw_moment_limited"]])
     z_ctl_n, c = control_law(d.controller, z_ctl, sig, o)
     diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
-    out = o.stack([est["beta"], est["yaw_rate"], est["yaw"], d1, d2, bias, est["beta_std"], est["gps_used"],
-                   c[0], c[1], -diff, diff, c[2], c[3]])
+    out = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"], est["beta_std"],
+                   est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3]])
+    return z_ctl_n, out
+
+
+def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
+    """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
+
+    ``sched``: the 18 values of :meth:`EcuDesign.schedule_inputs` for this step (numbers
+    or symbols); None reads the schedule here. ``with_course=False`` leaves out the course
+    update (exact on a step without a fix, see :func:`kalman.step`).
+    """
+    d = with_schedule_rows(d, sched)
+    lay = d.layout
+    ne = lay["controller"]
+    z_est_n, est = ecu_estimate(d, z[0:ne], u, o, with_course)
+    z_ctl_n, out = ecu_control(d, z[ne:lay["size"]], u, est, o)
     return o.concat([z_est_n, z_ctl_n]), out
 
 
