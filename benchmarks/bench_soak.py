@@ -114,7 +114,7 @@ def main() -> None:
     prog = program(spec)
     speed, steer, fix, outages, segments = drive(args.minutes, args.seed, p, args.limit)
     n = len(speed) // BLOCK * BLOCK
-    est = prog.est
+    est = prog.spec.ecu.ecu.filter
     lay = kalman.layout(est)
     off_est = prog.sizes[0]
     theta = prog.theta(mu_assumed=1.0)

@@ -6,8 +6,8 @@ actuators), compiled once (run-time parameters: no recompilation per case) and
 spread over a process pool (the ``local`` executor of ``evstab design``). Only the
 rollouts and their metrics are timed (the linear stability verdicts are a separate
 cost of the sweep, printed too). The reference is the same sweep case by case in a
-plain Python loop: the simulator's Python-stepped loop (numpy components one sample
-at a time) on ``--ref-cases`` cases, scaled per case; the first cases' metrics are
+plain Python loop: the simulator's numpy evaluation of the same loop step, one sample
+at a time, on ``--ref-cases`` cases, scaled per case; the first cases' metrics are
 checked to agree.
 
 Run: ``python benchmarks/bench_sweep.py [--cases 1000] [--workers 2] [--ref-cases 2] [--plant two-track]``
@@ -21,7 +21,6 @@ import time
 
 import numpy as np
 
-from controllers.two_dof import TwoDofController
 from plants import TRUTH, load_vehicle
 from plants.disturbances import Disturbances, Friction
 from toolkit import sweep as sw
@@ -40,13 +39,13 @@ def random_cases(n: int, seed: int = 11) -> list[sw.Case]:
 
 
 def python_loop_case(cfg: sw.SweepConfig, case: sw.Case) -> float:
-    """The reference: the case's cost from the simulator's Python-stepped loop."""
+    """The reference: the case's cost from the simulator's numpy evaluation of the loop step."""
     costs = []
     for man in sw.standard_maneuvers(cfg, case.speed_kmh / 3.6):
         r = simulate(case.plant_params(cfg.nominal), cfg.plant, man,
                      disturbances=Disturbances(friction=Friction(mu=case.mu)), sensors=case.sensors(cfg.sensors),
-                     seed=case.seed, controller=TwoDofController(sw.PAPER.controller(cfg.base_design())),
-                     estimator=cfg.filter_design(sw.PAPER), nominal=cfg.nominal)
+                     seed=case.seed, controller="two-dof", design=sw.PAPER.controller(cfg.base_design()),
+                     estimator=cfg.filter_design(sw.PAPER), nominal=cfg.nominal, compile=False)
         Y = np.column_stack([r.truth[k] for k in TRUTH])
         E = np.column_stack([r.commands[k] for k in EXTRA])
         costs.append(sw.cost_value(sw.cost_terms(Y, E), cfg.base_design().nz_max))
@@ -83,7 +82,7 @@ def main() -> None:
     for c, v in zip(cases, ref):
         got = next(r["cost"] for r in rows if r["case_id"] == c.case_id)
         assert abs(got - v) <= 1e-6 * max(1.0, abs(v)), (c.case_id, got, v)
-    print(f"plain Python loop (simulator, stepped): {t_ref:.2f} s per case, measured on {args.ref_cases} case(s) "
+    print(f"plain Python loop (simulator, numpy loop step): {t_ref:.2f} s per case, measured on {args.ref_cases} case(s) "
           f"-> {t_ref * args.cases:.0f} s for {args.cases} cases")
     print(f"ratio: {t_ref * args.cases / t_sweep:.0f}x")
 

@@ -80,8 +80,9 @@ def cmd_simulate(args) -> int:
     mu = p.mu if args.mu is None else args.mu
     dist = Disturbances(wind=default_wind(p) if args.wind else None, friction=Friction(mu=mu))
     sensors = SensorConfig(gps_outages=tuple(args.gps_outage or ()))
+    controller, estimator, design = _loop_choice(args)
     res = simulate(p, args.plant, man, disturbances=dist, sensors=sensors, seed=args.seed, dt=args.dt,
-                   controller=args.controller, estimator=args.estimator)
+                   controller=controller, estimator=estimator, design=design)
     res.write_csv(args.out)
     if args.plot:
         plot_run(res, args.plot, man)
@@ -91,6 +92,20 @@ def cmd_simulate(args) -> int:
           f"max |sideslip| {np.degrees(np.abs(tr['beta']).max()):.2f} deg, "
           f"max |ay| {np.abs(tr['ay']).max():.2f} m/s^2 -> {args.out}")
     return 0
+
+
+def _loop_choice(args):
+    """(controller, estimator, design) of a command with ``--controller``, ``--estimator`` and ``--design``:
+    a design folder's ECU (its filter and controller as exported) or the named method and seed 003's gains."""
+    if args.design is None:
+        if args.estimator is not None and args.controller is None:
+            raise EvstabError("--estimator names the filter in the stability loop; give --controller too")
+        return args.controller, args.estimator or "dakf", None
+    from .firmware.export import ecu_from_design
+    if args.estimator is not None:
+        raise EvstabError("--design runs the design folder's own filter; leave out --estimator")
+    ecu, _ = ecu_from_design(args.design)
+    return args.controller or "two-dof", ecu.filter, ecu
 
 
 def cmd_estimate(args) -> int:
@@ -253,10 +268,18 @@ def cmd_fmvss126(args) -> int:
     from controllers.two_dof import TwoDofDesign
 
     p = load_vehicle(args.vehicle)
-    design = TwoDofDesign(p.as_nominal(), k_beta=args.k_beta, k_gamma=args.k_gamma, yaw_priority=args.yaw_priority,
-                          reference_tau=args.reference_tau, friction_margin=args.friction_margin,
-                          disturbance_filter_tau=args.disturbance_filter)
-    a_deg, rows, verdict = run_series(p, args.controller, args.estimator, args.mu, plant=args.plant,
+    if args.design is not None:
+        from .firmware.export import ecu_from_design
+        if args.estimator is not None:
+            raise EvstabError("--design runs the design folder's own filter; leave out --estimator")
+        design, _ = ecu_from_design(args.design)
+        estimator = design.filter.method
+    else:
+        design = TwoDofDesign(p.as_nominal(), k_beta=args.k_beta, k_gamma=args.k_gamma,
+                              yaw_priority=args.yaw_priority, reference_tau=args.reference_tau,
+                              friction_margin=args.friction_margin, disturbance_filter_tau=args.disturbance_filter)
+        estimator = args.estimator or "dakf"
+    a_deg, rows, verdict = run_series(p, args.controller, estimator, args.mu, plant=args.plant,
                                       quick=args.quick, seed=args.seed, design=design)
     out = Path(args.out)
     keys = list(rows[0])
@@ -314,8 +337,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof", "two-dof-true"],
                     help="close the stability loop (sensors -> estimator -> controller -> actuators); "
                          "default: no loop, the driver alone")
-    sp.add_argument("--estimator", default="dakf", choices=LOOP_METHODS,
-                    help="estimation method in the loop (default dakf)")
+    sp.add_argument("--estimator", choices=LOOP_METHODS,
+                    help="the ECU's filter in the loop (default dakf; needs --controller)")
+    sp.add_argument("--design", help="an 'evstab design' folder: its ECU (filter, controller, calibration, "
+                                     "schedule, as exported) closes the loop; --controller defaults to two-dof")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--dt", type=_positive, default=1e-3, help="time step [s]")
     sp.add_argument("--out", required=True, help="drive-log CSV to write")
@@ -364,7 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (the controller's nominal model)")
     sp.add_argument("--plant", type=_plant, default="two-track", help=_PLANT_HELP + "; default two-track")
     sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")
-    sp.add_argument("--estimator", choices=LOOP_METHODS, default="dakf")
+    sp.add_argument("--estimator", choices=LOOP_METHODS, help="the ECU's filter (default dakf)")
+    sp.add_argument("--design", help="an 'evstab design' folder: its ECU as exported (instead of --estimator "
+                                     "and the design knobs below)")
     sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--quick", action="store_true", help="only the first two amplitudes at or above 5 A")
@@ -382,7 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="vehicle TOML to write")
     sp.set_defaults(func=cmd_derive_nominal)
     sp = sub.add_parser("design", help="design, analyse, sweep and tune the estimator and controller; write the report")
-    sp.add_argument("--vehicle", required=True, help="bundled name or TOML path")
+    sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (what the design believes)")
+    sp.add_argument("--plant", type=_plant, default="two-track",
+                    help=_PLANT_HELP + "; the car the sweep, tuning, responses and FMVSS 126 run on; default two-track")
     sp.add_argument("--out", required=True, help="folder for design.json, sweep.csv, report.html, report.md")
     sp.add_argument("--quick", action="store_true", help="fewer cases and tuning iterations (under a minute)")
     sp.add_argument("--executor", choices=["local", "dask"], default="local",
@@ -422,7 +451,7 @@ def cmd_design(args) -> int:
         raise EvstabError("--scheduler needs --executor dask")
     command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     doc = run_design(args.vehicle, args.out, quick=args.quick, executor=args.executor, scheduler=args.scheduler,
-                     workers=args.workers, command=command, progress=not args.no_progress)
+                     workers=args.workers, command=command, progress=not args.no_progress, plant=args.plant)
     s, d = doc["sweep"], doc["designs"]["tuned"]
     print(f"{doc['vehicle']['name']}: tuned K_beta {d['k_beta']:.4g}, K_gamma {d['k_gamma']:.4g} rad/s; "
           f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "

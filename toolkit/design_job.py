@@ -219,13 +219,13 @@ def fmvss_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], quick: bool) -
     p = cfg.nominal
     a_deg = find_a(p, cfg.plant, p.mu)
     out = []
-    _, rows, verdict = run_series(p, "none", a_deg=a_deg, quick=quick)
+    _, rows, verdict = run_series(p, "none", a_deg=a_deg, quick=quick, plant=cfg.plant)
     out.append({"controller": "no control", "A_deg": a_deg, "runs": len(rows),
                 "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
                 "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
     for pt in points:
         _, rows, verdict = run_series(p, "two-dof", cfg.filter_design(pt), a_deg=a_deg, quick=quick,
-                                      design=pt.controller(cfg.base_design()))
+                                      design=pt.controller(cfg.base_design()), plant=cfg.plant)
         out.append({"controller": f"2-DOF {pt.name}", "A_deg": a_deg, "runs": len(rows),
                     "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
                     "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
@@ -310,17 +310,18 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
 
 
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
-               workers: int | None = None, command: str | None = None, progress: bool = True, log=print) -> dict:
+               workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
+               plant: str = "two-track") -> dict:
     from .report import write_report
     from .tuning import SIGMA_MIN, BOUNDS
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     params = load_vehicle(vehicle)
-    cfg = sw.SweepConfig(params)
-    cases = sw.sweep_cases(quick=quick)
+    cfg = sw.SweepConfig(params, plant=plant)
+    cases = sw.sweep_cases(quick=quick, plant=plant)
     paper = sw.PAPER
-    log(f"evstab design: {params.name}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")
+    log(f"evstab design: {params.name} on {plant}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")
     rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
                               progress=progress)
     log(f"  sweep of the paper design: {time.perf_counter() - t_start:.1f} s")

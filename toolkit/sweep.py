@@ -182,7 +182,10 @@ def cost_value(terms: dict, nz_max: float) -> float:
 
 
 def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bool, float]:
-    """(stable, spectral radius) of the multi-rate loop with the estimator, linearised for the case."""
+    """(stable, spectral radius) of the multi-rate loop with the estimator, linearised for the case
+    (:func:`toolkit.stability.estimator_loop`: the loop step with the linear bicycle of the case's
+    parameters as the plant; on a ``commonroad-mb`` plant that bicycle is the nominal one, the
+    multi-body car itself is judged by the bounded rollouts)."""
     true = case.plant_params(cfg.nominal)
     v = max(case.speed_kmh / 3.6, 3.0)
     try:
@@ -330,12 +333,17 @@ def sweep_cases(quick: bool = False, seed: int = 7, plant: str = "two-track") ->
     Ranges: stiffness -40..+40 %, mu 0.3..1, mass and yaw inertia +-20 %, speed, GPS 1..20 Hz,
     latency 0..150 ms, gyro bias +-5 mrad/s and scale error +-2 %. On a ``commonroad-mb`` plant
     the car is the package's set, whatever the nominal says: its model error is fixed (the
-    nominal file against the multi-body car), so the stiffness grid and the mass and inertia
-    axes are left out and the random cases draw only friction, speed, GPS and gyro errors.
+    nominal file against the multi-body car), so of the stiffness grid only its centre (the car
+    itself) stays, the mass and inertia axes are left out and the random cases draw only
+    friction, speed, GPS and gyro errors.
     """
     if is_multibody(plant):
-        return [dataclasses.replace(c, cf_scale=1.0, cr_scale=1.0, mass_scale=1.0, inertia_scale=1.0)
-                for c in sweep_cases(quick, seed) if c.group not in ("stiffness", "mass_scale", "inertia_scale")]
+        def fixed(c):
+            return c.group not in ("stiffness", "mass_scale", "inertia_scale") or (
+                c.group == "stiffness" and c.cf_scale == 1.0 and c.cr_scale == 1.0)
+        kept = [c for c in sweep_cases(quick, seed) if fixed(c)]
+        return [dataclasses.replace(c, case_id=i, cf_scale=1.0, cr_scale=1.0, mass_scale=1.0, inertia_scale=1.0)
+                for i, c in enumerate(kept)]
     cases: list[Case] = []
 
     def add(group, **kw):

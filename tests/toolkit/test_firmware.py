@@ -436,3 +436,23 @@ def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_d
     Y = _harness(out / "replay", inputs)
     for i, name in enumerate(OUTPUT_NAMES):
         np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
+
+
+def test_simulate_with_a_design_folder_runs_its_ecu_in_the_loop(design_dir, ecu, tmp_path, capsys):
+    """``evstab simulate --design DIR`` closes the loop with the folder's ECU: the same run as the
+    simulator given that ECU, and not the default design's."""
+    from toolkit.logio import read_log
+    out = tmp_path / "run.csv"
+    args = ["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "60", "--amplitude", "2",
+            "--out", str(out)]
+    assert main(args + ["--design", str(design_dir)]) == 0
+    log = read_log(out)
+    p = load_vehicle("compact-ev")
+    man = make_maneuver("step-steer", p, 60 / 3.6, np.radians(2.0))
+    res = simulate(p, "two-track", man, controller="two-dof", design=ecu)
+    np.testing.assert_allclose(log["yaw_moment_cmd"], res.commands["yaw_moment_cmd"], rtol=1e-12, atol=1e-9)  # CSV
+    default = simulate(p, "two-track", man, controller="two-dof")
+    assert np.max(np.abs(default.commands["yaw_moment_cmd"] - res.commands["yaw_moment_cmd"])) > 10.0  # N m
+    assert main(args + ["--design", str(design_dir), "--estimator", "kf"]) == 2
+    assert "--estimator" in capsys.readouterr().err
+    assert main(args + ["--estimator", "kf"]) == 2  # a filter in the loop needs --controller

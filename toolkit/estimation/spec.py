@@ -59,9 +59,10 @@ from plants import VehicleParams
 from plants.bicycle import lateral_coefficients
 from plants.errors import ModelError
 
-LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "lob", "mbkf")
-"""Methods the closed loop and the simulator's stability loop can run."""
-METHODS = LOOP_METHODS + ("kkf", "two-stage", "dual-antenna", "double-layer")
+LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
+"""Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of
+:mod:`toolkit.estimation.kalman`."""
+METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
                   "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll"),
                   "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}

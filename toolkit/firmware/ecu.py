@@ -36,7 +36,7 @@ from plants.errors import ModelError
 
 from ..compiled import with_fields
 from ..estimation import kalman
-from ..estimation.spec import FilterDesign
+from ..estimation.spec import LOOP_METHODS, FilterDesign
 
 INPUTS = (
     # name, unit, C type, meaning
@@ -74,7 +74,7 @@ OUTPUTS = (
 )
 INPUT_NAMES = tuple(r[0] for r in INPUTS)
 OUTPUT_NAMES = tuple(r[0] for r in OUTPUTS)
-FIRMWARE_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
+FIRMWARE_METHODS = LOOP_METHODS
 
 
 @dataclass(frozen=True)
