@@ -203,13 +203,22 @@ def measure(t: np.ndarray, truth: dict, inputs: dict, cfg: SensorConfig, seed: i
     lo = max(int(idx.min()) - 1, 0)
     fix = gps_fix_mask(t[lo:last], cfg)[idx - lo].astype(float)
     out = readings(tr, inp, _noise_at(noise, idx), gps, fix, cfg, wheel_radius)
-    valid, fixed = out.pop("gps_valid") > 0.5, out.pop("gps_fix") > 0.5
-    nan = np.full(len(idx), np.nan)
+    roll_noise = noise["gps_roll"][idx] if "gps_roll" in noise else None
+    return log_columns(out, cfg, tr["roll"] + inp["bank"], roll_noise)
+
+
+def log_columns(out: dict, cfg: SensorConfig, roll_and_bank, roll_noise=None) -> dict:
+    """Drive-log columns from :func:`readings`' arrays: GPS values NaN on rows without a (valid) fix,
+    HDOP and satellites on fix rows, the heading wrapped, and with ``roll_noise`` (standard-normal
+    draws) the dual-antenna roll, the body's roll plus the road's bank (``roll_and_bank``)."""
+    out = dict(out)
+    valid, fixed = np.asarray(out.pop("gps_valid")) > 0.5, np.asarray(out.pop("gps_fix")) > 0.5
+    nan = np.full(len(valid), np.nan)
     out["gps_course"] = np.where(valid, out["gps_course"], nan)
     out["gps_speed"] = np.where(fixed, out["gps_speed"], nan)
     out["gps_hdop"] = np.where(fixed, cfg.gps_hdop, nan)
     out["gps_sats"] = np.where(fixed, float(cfg.gps_sats), nan)
     out["gps_heading"] = np.where(fixed, wrap_angle(out["gps_heading"]), nan)
-    if "gps_roll" in noise:  # dual-antenna roll: the body's roll plus the road's bank
-        out["gps_roll"] = np.where(fixed, tr["roll"] + inp["bank"] + cfg.roll_noise * noise["gps_roll"][idx], nan)
+    if roll_noise is not None:
+        out["gps_roll"] = np.where(fixed, roll_and_bank + cfg.roll_noise * roll_noise, nan)
     return out

@@ -205,21 +205,13 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
 
 
 def _log_readings(M: np.ndarray, Y: np.ndarray, W: np.ndarray, sensors: SensorConfig, seed: int) -> dict:
-    """Drive-log columns from the readings the ECU was given (NaN where a GPS row has no fix), and
-    the dual-antenna roll, which the ECU does not read, from the truth as :func:`measure` makes it."""
+    """Drive-log columns from the readings the ECU was given, and the dual-antenna roll, which the ECU
+    does not read, from the truth as :func:`measure` makes it."""
     from .closed_loop import MEAS
-    from plants.sensors import draw_noise, wrap_angle
+    from plants.sensors import draw_noise, log_columns
     m = {k: M[:, i] for i, k in enumerate(MEAS)}
-    valid, fixed = m.pop("gps_valid") > 0.5, m.pop("gps_fix") > 0.5
-    nan = np.full(len(valid), np.nan)
-    m["gps_course"] = np.where(valid, m["gps_course"], nan)
-    m["gps_speed"] = np.where(fixed, m["gps_speed"], nan)
-    m["gps_hdop"] = np.where(fixed, sensors.gps_hdop, nan)
-    m["gps_sats"] = np.where(fixed, float(sensors.gps_sats), nan)
-    m["gps_heading"] = np.where(fixed, wrap_angle(m["gps_heading"]), nan)
     roll = Y[TRUTH.index("roll")] + W[DISTURBANCES.index("bank")]
-    m["gps_roll"] = np.where(fixed, roll + sensors.roll_noise * draw_noise(sensors, seed, len(valid))["gps_roll"], nan)
-    return m
+    return log_columns(m, sensors, roll, draw_noise(sensors, seed, M.shape[0])["gps_roll"])
 
 
 def check_rollover(plant: str, roll: np.ndarray, dt: float, maneuver) -> None:

@@ -301,25 +301,6 @@ def test_known_gps_latency_is_compensated():
     assert errs[0.1] < 0.3 * errs[0.0]  # measured 0.106 vs 0.814 deg RMS (ratio 0.13)
 
 
-def test_step_component_matches_the_runner():
-    from toolkit.estimation.component import EstimatorComponent
-    p = load_vehicle("micro-ev")
-    log = simulate(p, "bicycle", make_maneuver("sine-lane-change", p, 25 / 3.6)).log_columns()
-    d = design_filter("dakf", p)
-    ref = run_estimator(d, log)
-    comp = EstimatorComponent(d)
-    state = comp.initial_state(log["yaw_rate"][0])
-    n = 3000
-    beta = np.empty(n)
-    for k in range(n):
-        sig = {name: log[name][k] for name in ("speed", "steer", "yaw_moment", "yaw_rate", "gps_course", "gps_hdop",
-                                               "gps_sats", "ay")}
-        sig["dt"] = 1e-3 if k == 0 else log["t"][k] - log["t"][k - 1]
-        state, out = comp.step(state, log["t"][k], sig)
-        beta[k] = out["beta"]
-    np.testing.assert_allclose(beta, ref["beta"][:n], atol=1e-12)  # C vs VM of the same function
-
-
 def test_lob_observability():
     d = design_filter("lob", load_vehicle("compact-ev"))
     assert observability(d, 20.0).observable

@@ -1,15 +1,14 @@
 """The ECU step: one control period of estimator and controller, numpy or casadi.
 
-This is the part of the stability loop that runs on the vehicle, cut out of the
-simulator's loop with the same component equations: the Kalman-filter step of
+This is the part of the stability loop that runs on the vehicle, and the loop
+(:func:`toolkit.closed_loop.loop_step`) runs exactly this step: the Kalman-filter step of
 :mod:`toolkit.estimation.kalman`, the control law of :mod:`controllers.two_dof`
 (both with the speed schedule of :mod:`controllers.schedule`, the firmware's model),
 and the split of the yaw-moment command over the rear motors. Its inputs are what
 an ECU receives each period (:data:`INPUTS`, SI units, ISO 8855 signs), its state
 the filter's and the controller's, its outputs :data:`OUTPUTS`.
 
-Step semantics (the simulator's, see :func:`toolkit.simulator.simulate`): each
-period the filter takes the measurements and the yaw moment applied over the last
+Step semantics: each period the filter takes the measurements and the yaw moment applied over the last
 period, then the controller takes the new estimates, the driver's steer and the
 actuators' limit flags of the last period. Before the step the schedule is read at
 ``max(speed, filter min_speed)`` for the filter and ``max(speed, controller
