@@ -60,10 +60,10 @@ def main(argv=None):
     for _ in range(5):
         t0 = time.perf_counter()
         U, z0, pv = prog.inputs(p, man, dist, sens, 0)
-        Y, _ = prog.run(U, z0, pv, prog.theta(mu_assumed=p.mu))
+        Y, _ = prog.run(U, z0, pv, prog.theta())
         best = min(best, time.perf_counter() - t0)
     n = len(Y)
-    t_ref, resp = python_control_loop(spec, p, U, z0, prog.theta(mu_assumed=p.mu), args.ref_seconds)
+    t_ref, resp = python_control_loop(spec, p, U, z0, prog.theta(), args.ref_seconds)
     m = resp.outputs.shape[1]
     diff = np.abs(resp.outputs[TRUTH.index("yaw_rate")] - Y[:m, TRUTH.index("yaw_rate")]).max()
     per_c, per_ref = best / n, t_ref / m

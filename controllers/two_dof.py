@@ -68,6 +68,50 @@ class TwoDofDesign:
     """Largest sideslip error [rad] the feedback acts on (inf: no limit)."""
     disturbance_filter_tau: float = 0.0
     """First-order low-pass [s] on the disturbance estimates before rejection (0 = none)."""
+    # supervision (controllers.supervisor): when the law acts, its authority, the friction on board
+    always_active: bool = False
+    """True: the law acts whenever the car is above ``min_speed`` (seed 003's controller), no dead bands."""
+    yaw_rate_deadband: float = np.deg2rad(2.0)
+    """Yaw-rate error [rad/s] that activates the law at standstill speed."""
+    yaw_rate_deadband_per_speed: float = np.deg2rad(0.05)
+    """Growth of that dead band with speed [rad/s per m/s]: 3.1 deg/s at 80 km/h."""
+    deadband_shrink: float = 0.5
+    """Share by which the dead bands shrink at full friction use [-]."""
+    beta_threshold: float = np.deg2rad(3.0)
+    """Estimated sideslip [rad] that activates the law (when ``beta_std < beta_std_max``)."""
+    beta_std_max: float = np.deg2rad(2.0)
+    """Sideslip-estimate standard deviation [rad] above which the sideslip criterion is not trusted."""
+    deactivate_ratio: float = 0.5
+    """Hysteresis: the law stays active until both errors are below this share of their thresholds."""
+    hold_time: float = 0.5
+    """... for this long [s]."""
+    blend_time: float = 0.1
+    """The law's authority ramps in and out over this time [s]."""
+    steer_authority: float = np.deg2rad(20.0)
+    """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's. FMVSS 126 on
+    compact-ev (two-track, 80 km/h) needs it: on mu 1, 3 deg pass 22 / 44 runs, 6 deg 32, 8 deg 40,
+    10 deg 44; on mu 0.6, 10 deg 40 / 44 and 20 deg 44 (the rear motors cannot help a car whose rear
+    tyres are saturated, and the front has only the steer)."""
+    steer_authority_rate: float = np.deg2rad(100.0)
+    """Largest rate of that correction [rad/s]."""
+    mu_max: float = 1.0
+    """Friction the ECU assumes without evidence of less (and its upper bound) [-]."""
+    mu_min: float = 0.1
+    saturation_ratio: float = 0.8
+    """Saturated when the car delivers less than this share of the linear model's lateral acceleration."""
+    saturation_ay_min: float = 2.0
+    """Lateral-acceleration demand [m/s^2] below which saturation is not judged."""
+    demand_tau: float = 0.15
+    """Lag [s] of the linear lateral-acceleration demand the measured one is compared with."""
+    rear_grip_share: float = 0.5
+    """Share of the rear tyres' remaining grip (friction circle less the lateral use) the yaw moment
+    may take: differential torque costs rear side force."""
+    peak_ratio: float = 0.95
+    """Lateral acceleration of a saturated car as a share of mu g [-]."""
+    mu_tau_down: float = 0.2
+    """Time constant [s] of the friction estimate falling to what a saturated car delivers."""
+    mu_tau_up: float = 2.0
+    """Time constant [s] of its recovery towards ``mu_max``."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
     schedule: object = None
     """A :class:`controllers.schedule.SpeedSchedule` (firmware: coefficients and reference gains from
@@ -78,6 +122,11 @@ class TwoDofDesign:
             raise ValueError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
             raise ValueError(f"control period must be > 0 s, got {self.dt}")
+        for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if not 0 < self.mu_min <= self.mu_max:
+            raise ValueError(f"controller friction bounds need 0 < mu_min <= mu_max, got {self.mu_min}, {self.mu_max}")
 
     @property
     def nz_max(self) -> float:
@@ -109,10 +158,12 @@ SIGNALS = ("speed", "steer_driver", "beta", "yaw_rate", "d1", "d2", "mu", "steer
 OUTPUTS = ("steer", "yaw_moment", "beta_ref", "yaw_rate_ref")
 
 
-def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
+def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     """One control period, written once for numpy and casadi: ``(z, sig) -> (z_next, out)``.
 
-    ``z`` per :data:`STATE`, ``sig`` per :data:`SIGNALS`, ``out`` per :data:`OUTPUTS`.
+    ``z`` per :data:`STATE`, ``sig`` per :data:`SIGNALS`, ``out`` per :data:`OUTPUTS`; ``nz_limit``
+    the largest yaw moment this period allows (default ``nz_max``; the ECU passes what the rear
+    tyres' remaining grip allows, :func:`controllers.supervisor.yaw_moment_limit`).
     """
     s = unpack(sig, SIGNALS)
     p = d.params
@@ -141,7 +192,10 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY):
     v2 = xr_dot - (a21 * xb + a22 * xr) + kr_ * e_r - (a21 * kb_ * xi_b + a22 * kr_ * xi_r) - dist_r
     delta = v1 / b11
     nz = (v2 - b21 * delta) / b22
-    delta, nz = allocate(d, delta, nz, b11, b21, b22, o)
+    # the steer the ECU can command: the driver's plus the superposition's authority, within steer_max
+    lo = o.fmax(s.steer_driver - d.steer_authority, -d.steer_max)
+    hi = o.fmin(s.steer_driver + d.steer_authority, d.steer_max)
+    delta, nz = allocate(d, delta, nz, b11, b21, b22, o, lo, hi, nz_limit)
     low = v < d.min_speed
     delta = o.if_else(low, s.steer_driver, delta)
     nz = o.if_else(low, 0.0, nz)
@@ -174,24 +228,26 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
     return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)
 
 
-def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY):
+def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY, lo=None, hi=None, nz_limit=None):
     """Saturation-aware allocation of ``u = (delta, N_z)``, numpy or casadi.
 
-    When a command exceeds its limit it is clipped and the other is chosen to realise
-    the demanded ``B u`` in weighted least squares, the yaw-rate row weighted
-    ``yaw_priority`` times the sideslip row (yaw stability first). Without
-    saturation the exact inverse is kept.
+    When a command exceeds its limit (steer within ``[lo, hi]``, default ``+-steer_max``; yaw moment
+    within ``+-nz_max``) it is clipped and the other is chosen to realise the demanded ``B u`` in
+    weighted least squares, the yaw-rate row weighted ``yaw_priority`` times the sideslip row (yaw
+    stability first). Without saturation the exact inverse is kept.
     """
     w1, w2 = 1.0, d.yaw_priority
     v1, v2 = b11 * delta, b21 * delta + b22 * nz
-    smax, nmax = d.steer_max, d.nz_max
+    lo = -d.steer_max if lo is None else lo
+    hi = d.steer_max if hi is None else hi
+    nmax = d.nz_max if nz_limit is None else nz_limit
     nz_a = o.fmin(o.fmax(nz, -nmax), nmax)
     delta_a = (w1 * b11 * v1 + w2 * b21 * (v2 - b22 * nz_a)) / (w1 * b11 * b11 + w2 * b21 * b21)
-    delta_a = o.fmin(o.fmax(delta_a, -smax), smax)
-    delta_b = o.fmin(o.fmax(delta, -smax), smax)
+    delta_a = o.fmin(o.fmax(delta_a, lo), hi)
+    delta_b = o.fmin(o.fmax(delta, lo), hi)
     nz_b = o.fmin(o.fmax((v2 - b21 * delta_b) / b22, -nmax), nmax)
     nz_sat = o.fabs(nz) > nmax
-    d_sat = o.fabs(delta) > smax
-    out_delta = o.if_else(nz_sat, delta_a, o.if_else(d_sat, delta_b, delta))
-    out_nz = o.if_else(nz_sat, nz_a, o.if_else(d_sat, nz_b, nz))
+    d_sat = (delta < lo) + (delta > hi)
+    out_delta = o.if_else(nz_sat, delta_a, o.if_else(d_sat > 0.5, delta_b, delta))
+    out_nz = o.if_else(nz_sat, nz_a, o.if_else(d_sat > 0.5, nz_b, nz))
     return out_delta, out_nz

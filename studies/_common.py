@@ -45,3 +45,11 @@ def cli(main) -> None:
     args = [a for a in sys.argv[1:] if a != "--quick"]
     for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
         print(row)
+
+
+def seed_003_design(p):
+    """Seed 003's controller as the paper runs it: the 2-DOF law always acting above its minimum speed
+    (no dead bands) with the steer's full range (no superposition limit), K_beta = K_gamma = 5."""
+    import numpy as np
+    from controllers.two_dof import TwoDofDesign
+    return TwoDofDesign(p.as_nominal(), always_active=True, steer_authority=np.deg2rad(35.0))

@@ -18,6 +18,7 @@ from plants import load_vehicle
 from plants.disturbances import Disturbances, default_wind
 from plants.maneuvers import step_steer
 from studies._common import cli, out_dir, save_figure, write_table
+from studies._common import seed_003_design
 from toolkit.simulator import simulate
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
@@ -29,7 +30,7 @@ def main(out, quick: bool = False) -> list[dict]:
     man = step_steer(25 / 3.6, np.radians(5.0), start=1.0, duration=5.0 if quick else 10.0)
     rows, runs = [], {}
     for ctl in CONTROLLERS:
-        r = simulate(p, "two-track", man, controller=ctl, disturbances=Disturbances(wind=default_wind(p)))
+        r = simulate(p, "two-track", man, controller=ctl, design=seed_003_design(p), disturbances=Disturbances(wind=default_wind(p)))
         c = r.commands
         sel = r.t >= 1.0
         eb = np.degrees(r.truth["beta"] - c["beta_ref"])[sel]

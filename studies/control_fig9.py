@@ -17,6 +17,7 @@ import numpy as np
 from plants import load_vehicle
 from plants.maneuvers import Maneuver
 from studies._common import cli, out_dir, save_figure, write_table
+from studies._common import seed_003_design
 from toolkit.simulator import simulate
 
 
@@ -36,7 +37,7 @@ def main(out, quick: bool = False) -> list[dict]:
     man = cornering(20 / 3.6, np.radians(8.0), hold=1.5 if quick else 3.0)
     rows, runs = [], {}
     for ctl in ("none", "two-dof"):
-        r = simulate(p, "two-track", man, controller=ctl)
+        r = simulate(p, "two-track", man, controller=ctl, design=seed_003_design(p))
         c = r.commands
         sel = r.t >= 1.0
         rows.append({"controller": ctl,

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+import controllers.supervisor as sup_mod
 import controllers.two_dof as ctl_mod
 from controllers.actuators import ActuatorLimits, actuator_law
 from controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
@@ -54,7 +55,7 @@ NOISE = ("steer", "gyro", "roll_gyro", "accel_x", "accel_y", "wheel_fl", "wheel_
          "speed", "gps_e", "gps_n", "heading")
 EXTRA = ("steer", "yaw_moment", "steer_driver", "yaw_moment_cmd", "beta_ref", "yaw_rate_ref", "beta_est",
          "yaw_rate_est", "yaw_moment_limited", "steer_cmd", "steer_limited", "steer_limited_last",
-         "yaw_moment_limited_last", "steer_rate")
+         "yaw_moment_limited_last", "steer_rate", "active", "mu_est")
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
 MEAS = ("steer", "yaw_moment", "yaw_rate", "roll_rate", "ax", "ay", "wheel_speed_fl", "wheel_speed_fr",
         "wheel_speed_rl", "wheel_speed_rr", "speed", "gps_valid", "gps_fix", "gps_course", "gps_speed", "gps_heading")
@@ -109,7 +110,7 @@ class LoopEcu:
         if self.kind == "driver":
             return 0, 0
         ne = self.ecu.layout["controller"] if self.has_filter else 0
-        nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE)
+        nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE) + len(sup_mod.STATE)
         return ne, nc
 
     @property
@@ -127,6 +128,8 @@ class LoopEcu:
         z = np.zeros(ne + nc)
         if ne:
             z[:ne] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
+        if self.kind not in ("driver", "yaw-pi"):
+            z[ne + len(ctl_mod.STATE):] = sup_mod.initial_state(self.ecu.controller)
         return z
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
@@ -149,7 +152,7 @@ class LoopEcu:
             z_ctl_n, c = yaw_pi_law(d.controller, z_ctl, sig, o)
             diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
             y = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"],
-                         est["beta_std"], est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3]])
+                         est["beta_std"], est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3], 1.0 + zero, g["mu"]])
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
@@ -233,6 +236,8 @@ class LoopSpec:
             names += [f"filter.buf{i}" for i in range(lay["size"] - lay["buf"])]
         if nc:
             names += [f"controller.{s}" for s in (YAW_PI_STATE if self.ecu.kind == "yaw-pi" else ctl_mod.STATE)]
+            if self.ecu.kind != "yaw-pi":
+                names += [f"supervisor.{s}" for s in sup_mod.STATE]
         names += ["actuator.steer", "actuator.torque_diff", "applied.steer", "applied.yaw_moment",
                   "applied.steer_rate", "flag.steer_limited", "flag.yaw_moment_limited"]
         names += [f"slot{j}.{k}" for j in range(SLOTS) for k in ("yaw", "vx", "vy", "yaw_rate")]
@@ -304,7 +309,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     if ecu.kind == "driver":
         z_ecu_n = z_ecu
         steer_cmd, nz_cmd = steer_drv, 0.0 * steer_drv
-        beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = 0.0 * steer_drv
+        beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = 0.0 * steer_drv
     else:
         valid = m["gps_valid"]
         g = {"dt": dt + 0.0 * steer_drv, "speed": m["speed"], "steer": m["steer"], "yaw_rate": m["yaw_rate"],
@@ -318,6 +323,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
         steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
+        active, mu_est = out["active"], out["mu_est"]
 
     # 3. actuators
     if ecu.kind == "driver":
@@ -336,7 +342,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     x_n = rk4_step(model, sp, x, cmd, w, dt, spec.n_sub)
     z_n = o.concat([x_n, z_ecu_n, z_act_n, o.stack([a[0], a[1], rate, a[2], a[3]]), o.stack(nxt)])
     extra = o.stack([a[0], a[1], steer_drv, nz_cmd, beta_ref, yaw_rate_ref, beta_est, yaw_rate_est, a[3], steer_cmd,
-                     a[2], flags[0], flags[1], rate])
+                     a[2], flags[0], flags[1], rate, active, mu_est])
     return z_n, y, extra, meas
 
 

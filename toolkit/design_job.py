@@ -198,7 +198,7 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
                                    r.commands["steer"], np.zeros(len(r.t)))}
             U, z0, pv = prog.inputs(true, man, Disturbances(friction=Friction(mu=mu)), sens, case.seed)
             for pt in points:
-                th = prog.theta(**pt.calibration(), mu_assumed=mu)
+                th = prog.theta(**pt.calibration(), mu_assumed=cfg.base_design().mu_max)  # not told the road
                 Y, E = prog.run(U, z0, pv, th)
                 from plants import TRUTH
                 from .closed_loop import EXTRA

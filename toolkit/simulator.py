@@ -120,7 +120,8 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         The ECU's filter (``dakf`` default; designed for ``nominal`` with the sensors' GPS
         latency), or a designed filter; not used by ``two-dof-true``.
     mu_assumed : float
-        Friction the ECU's reference assumes (default the run's friction).
+        The ECU's ``mu`` input, a road-friction sensor (an upper bound on the ECU's own friction
+        estimate); default none: the design's ``mu_max``. The ECU is not told the road.
     nominal : VehicleParams
         What the ECU believes (default ``params``); a different set is a model error.
     design : TwoDofDesign or EcuDesign
@@ -167,8 +168,9 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
                             sensors=sensors, dt=dt, design=design, estimator_latency=lat, truth=params)
         prog = cl.program(spec) if compile else None
         U, z0, pv = cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
+        no_sensor = spec.ecu.ecu.controller.mu_max if spec.ecu.ecu is not None else 1.0
         theta = cl.loop_theta(spec, gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
-                              mu_assumed=disturbances.friction.mu if mu_assumed is None else mu_assumed)
+                              mu_assumed=no_sensor if mu_assumed is None else mu_assumed)
         if maneuver.open_loop and prog is not None:
             Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
         else:

@@ -212,8 +212,9 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint], *, li
     nz_max = cfg.base_design().nz_max
     rows = []
     for point in points:
+        # the ECU is not told the road: its mu input is the design's "no road sensor" value
         theta = prog.theta(**point.calibration(), gyro_bias=case.gyro_bias, gyro_scale_error=case.gyro_scale_error,
-                           mu_assumed=case.mu)
+                           mu_assumed=cfg.base_design().mu_max)
         terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
         it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
         for U, z0, pv in runs:

@@ -175,7 +175,7 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
     data = []
     for c in cases:
         prog, runs = sweep.case_inputs(cfg, c)
-        data.append((runs, np.array([c.gyro_bias, c.gyro_scale_error, c.mu])))
+        data.append((runs, np.array([c.gyro_bias, c.gyro_scale_error, cfg.base_design().mu_max])))  # not told mu
     stab = list(stability_cases if stability_cases is not None else cases)
     m = len(data)
     cache: dict = {}

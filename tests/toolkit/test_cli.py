@@ -115,7 +115,10 @@ def test_simulate_with_the_stability_loop(tmp_path):
                  "--controller", "two-dof", "--out", str(out)]) == 0
     log = read_log_csv(out)
     assert "steer_driver" in log and "yaw_moment_cmd" in log
-    assert np.abs(log["yaw_moment"]).max() > 0  # the motors act
+    assert np.all(log["yaw_moment_cmd"] == 0)  # a gentle step: the ECU passes the driver through
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "sine-with-dwell", "--speed", "80",
+                 "--controller", "two-dof", "--out", str(out)]) == 0
+    assert np.abs(read_log_csv(out)["yaw_moment"]).max() > 100  # at the limit the motors act [N m]
     with pytest.raises(SystemExit):
         main(["simulate", "--vehicle", "micro-ev", "--maneuver", "step-steer", "--speed", "25",
               "--controller", "magic", "--out", str(out)])

@@ -50,7 +50,10 @@ def design_dir(tmp_path_factory):
     p = load_vehicle("compact-ev")
     noise = NoiseSettings(q_beta=2.1e-5, q_yaw_rate=0.05, q_d1=0.004, q_d2=0.03)
     filt = design_filter("dakf", p, noise)
-    ctl = TwoDofDesign(p.as_nominal(), k_beta=6.5, k_gamma=4.25, yaw_priority=2.0)
+    # dead bands low enough that the lane change below switches the law on and off (so activation,
+    # blending and the authority limit are exercised), and away from the defaults
+    ctl = TwoDofDesign(p.as_nominal(), k_beta=6.5, k_gamma=4.25, yaw_priority=2.0, yaw_rate_deadband=np.radians(0.5),
+                       yaw_rate_deadband_per_speed=0.0, steer_authority=np.radians(6.0))
     doc = basic_design_document(p, filt, ctl, {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10},
                                 "test fixture")
     out = tmp_path_factory.mktemp("design")
@@ -365,15 +368,19 @@ def test_ecu_signs_follow_iso_8855(ecu):
     u = np.zeros(len(INPUT_NAMES))
     g = dict(zip(INPUT_NAMES, range(len(INPUT_NAMES))))
     u[g["dt"]], u[g["speed"]], u[g["gps_hdop"]], u[g["gps_sats"]], u[g["mu"]] = 1e-3, 20.0, 1.0, 10, 1.0
-    u[g["steer_cmd_driver"]] = np.radians(1.0)
     u[g["yaw_rate"]] = 0.05
     z = ecu.initial_state()
     for _ in range(50):
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
+    assert dict(zip(OUTPUT_NAMES, y))["yaw_rate"] > 0
+    # the driver steers left and the car does not turn (understeer): the law acts, turning left
+    u[g["steer_cmd_driver"]], u[g["yaw_rate"]] = np.radians(1.0), 0.0
+    for _ in range(300):
+        z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
     out = dict(zip(OUTPUT_NAMES, y))
-    assert out["yaw_rate_ref"] > 0 and out["yaw_rate"] > 0
+    assert out["yaw_rate_ref"] > 0 and out["active"] == 1.0
     nz = out["yaw_moment_cmd"]
-    assert nz != 0
+    assert nz > 0 and out["steer_cmd"] > u[g["steer_cmd_driver"]]
     assert out["torque_rr"] == pytest.approx(-out["torque_rl"])
     assert out["torque_rr"] == pytest.approx(np.clip(nz * ecu.wheel_radius / ecu.track_rear, -ecu.torque_max,
                                                      ecu.torque_max), rel=1e-12)

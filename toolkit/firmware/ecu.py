@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controllers import supervisor as sup_mod
 from controllers import two_dof as ctl_mod
 from controllers.schedule import ROWS, SpeedSchedule
-from controllers.two_dof import TwoDofDesign, control_law
+from controllers.two_dof import TwoDofDesign, control_law, reference
 from plants.backend import CASADI, NUMPY
 from plants.errors import ModelError
 
@@ -53,7 +54,7 @@ INPUTS = (
     ("yaw_moment_applied", "N m", "real", "yaw moment the rear motors made over the last period, + turns left"),
     ("steer_limited", "-", "int", "1 when the steer actuator was at a limit in the last period"),
     ("yaw_moment_limited", "-", "int", "1 when the motors were at a torque limit in the last period"),
-    ("mu", "-", "real", "tire-road friction the reference model assumes"),
+    ("mu", "-", "real", "friction from a road sensor, an upper bound on the ECU's estimate (none: the design's mu_max)"),
 )
 OUTPUTS = (
     ("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
@@ -70,6 +71,8 @@ OUTPUTS = (
     ("torque_rr", "N m", "rear-right wheel torque command (the yaw part, added to the driver's)"),
     ("beta_ref", "rad", "sideslip reference"),
     ("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+    ("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
+    ("mu_est", "-", "friction estimate the reference is limited with"),
 )
 INPUT_NAMES = tuple(r[0] for r in INPUTS)
 OUTPUT_NAMES = tuple(r[0] for r in OUTPUTS)
@@ -97,6 +100,25 @@ _CONTROLLER_CAL = (
     ("yaw_priority", "-", 0.001, 1000.0, "weight of the yaw-rate row against sideslip when a command saturates"),
     ("steer_max", "rad", 0.0, 1.0, "road-wheel angle command limit"),
     ("yaw_moment_max", "N m", 0.0, 1e5, "largest yaw moment command"),
+    ("yaw_rate_deadband", "rad/s", 0.0, 1.0, "yaw-rate error that activates the law (at low speed)"),
+    ("yaw_rate_deadband_per_speed", "rad/s/(m/s)", 0.0, 0.1, "growth of the yaw-rate dead band with speed"),
+    ("deadband_shrink", "-", 0.0, 1.0, "share by which the dead bands shrink at full friction use"),
+    ("beta_threshold", "rad", 0.0, 1.0, "estimated sideslip that activates the law"),
+    ("beta_std_max", "rad", 0.0, 1.0, "sideslip-estimate std above which the sideslip criterion is ignored"),
+    ("deactivate_ratio", "-", 0.0, 1.0, "hysteresis: share of the thresholds below which the law may end"),
+    ("hold_time", "s", 0.001, 10.0, "time both errors stay below the off thresholds before the law ends"),
+    ("blend_time", "s", 0.001, 10.0, "ramp time of the law's authority"),
+    ("steer_authority", "rad", 0.0, 1.0, "largest steer correction added to the driver's road-wheel angle"),
+    ("steer_authority_rate", "rad/s", 0.0, 100.0, "largest rate of the steer correction"),
+    ("mu_max", "-", 0.05, 2.0, "friction assumed without evidence of less"),
+    ("mu_min", "-", 0.01, 2.0, "smallest friction estimate"),
+    ("saturation_ratio", "-", 0.0, 1.0, "saturated when |ay| is below this share of the linear demand"),
+    ("saturation_ay_min", "m/s^2", 0.0, 20.0, "lateral-acceleration demand below which saturation is not judged"),
+    ("demand_tau", "s", 0.001, 10.0, "lag of the linear lateral-acceleration demand"),
+    ("rear_grip_share", "-", 0.0, 1.0, "share of the rear tyres' remaining grip the yaw moment may take"),
+    ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
+    ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
+    ("mu_tau_up", "s", 0.001, 100.0, "time constant of the friction estimate recovering"),
 )
 _NOISE_CAL = {
     "q_beta": ("rad^2/s", "process-noise intensity on beta'"),
@@ -151,7 +173,8 @@ class EcuDesign:
         """Offsets of the flat ECU state: the filter's parts (see :func:`kalman.layout`), then the controller's."""
         lay = dict(kalman.layout(self.filter))
         lay["controller"] = lay["size"]
-        lay["size"] = lay["size"] + len(ctl_mod.STATE)
+        lay["supervisor"] = lay["controller"] + len(ctl_mod.STATE)
+        lay["size"] = lay["supervisor"] + len(sup_mod.STATE)
         return lay
 
     @property
@@ -160,7 +183,8 @@ class EcuDesign:
 
     def initial_state(self) -> np.ndarray:
         """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
-        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), np.zeros(len(ctl_mod.STATE))])
+        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), np.zeros(len(ctl_mod.STATE)),
+                               sup_mod.initial_state(self.controller)])
 
     @property
     def min_speeds(self) -> tuple[float, float]:
@@ -256,15 +280,33 @@ def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
 
 def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     """The controller part of the step: ``(z_ctl, u, estimates) -> (z_ctl_next, y)``, ``y`` per
-    :data:`OUTPUTS` (the estimates are passed through to it)."""
+    :data:`OUTPUTS` (the estimates are passed through to it). ``z_ctl`` is the law's state
+    (:data:`controllers.two_dof.STATE`) then the supervisor's (:data:`controllers.supervisor.STATE`):
+    friction estimate, activation, authority (see :mod:`controllers.supervisor`)."""
     g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
-    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"], g["mu"],
-                   g["steer_limited"], g["yaw_moment_limited"]])
-    z_ctl_n, c = control_law(d.controller, z_ctl, sig, o)
-    diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
+    c = d.controller
+    nl = len(ctl_mod.STATE)
+    z_law, z_sup = z_ctl[0:nl], z_ctl[nl:nl + len(sup_mod.STATE)]
+    vm = o.fmax(g["speed"], c.min_speed)
+    _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], 1e6, o)  # the unlimited linear demand
+    mu_est, use, demand = sup_mod.friction_estimate(c, z_sup[4], z_sup[7], g["speed"], g["ay"], gamma_lin, g["dt"], o)
+    mu_ref = o.fmin(mu_est, g["mu"])
+    steer_flag = o.fmax(g["steer_limited"], z_sup[5])
+    nz_flag = o.fmax(g["yaw_moment_limited"], z_sup[6])
+    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"], mu_ref,
+                   steer_flag, nz_flag])
+    nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
+    z_law_n, law = control_law(c, z_law, sig, o, nz_limit)
+    sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
+        c, z_sup, g["speed"], z_law[3] - est["yaw_rate"], est["beta"], est["beta_std"], use, g["steer_cmd_driver"],
+        law[0], law[1], nz_limit, g["dt"], o)
+    sup_n[4], sup_n[7] = mu_est, demand
+    # the law's integrators run only while it has authority
+    z_law_n = o.stack([z_law_n[0] * law_on, z_law_n[1] * law_on] + [z_law_n[i] for i in range(2, nl)])
+    diff = o.fmin(o.fmax(nz_cmd * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
     out = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"], est["beta_std"],
-                   est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3]])
-    return z_ctl_n, out
+                   est["gps_used"], steer_cmd, nz_cmd, -diff, diff, law[2], law[3], sup_n[2], mu_est])
+    return o.concat([z_law_n, o.stack(sup_n)]), out
 
 
 def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):

@@ -1,0 +1,116 @@
+"""The stability controller's supervision: when the 2-DOF law may act, with how much authority, on
+how much friction. Written once for numpy and casadi, like the law (:mod:`controllers.two_dof`).
+
+A stability controller must do no harm: in linear driving the ECU passes the driver through, and
+the model-following law of seed 003 acts only when the car needs it.
+
+* **Friction on board** (:func:`friction_estimate`). The ECU is not told the road. It compares
+  the measured lateral acceleration with the linear model's demand for the driver's steer,
+  ``a_lin = v gamma_ss(delta)``: when the demand is at least ``saturation_ay_min`` and the car
+  delivers less than ``saturation_ratio`` of it, the tyres are saturated and the friction is what
+  the car delivers, ``|a_y| / (peak_ratio g)`` (a saturated car sustains about 0.95 of mu g); the
+  estimate falls to that with time constant ``mu_tau_down``, otherwise it recovers towards
+  ``mu_max`` with ``mu_tau_up``, and it is never below what the car is using right now. The
+  reference model's friction limit (seed 003 eq. 23-24 with ``|r_ref| <= k mu g / v``) uses
+  ``min(mu_est, mu input)``; the ``mu`` input is an optional road sensor (``mu_max`` when there is
+  none). Friction use ``|a_y| / (mu_est g)`` shrinks the dead bands below.
+* **Activation with hysteresis** (:func:`supervise`). Active when the yaw-rate error against the
+  (friction-limited, lagged) reference exceeds ``(yaw_rate_deadband + yaw_rate_deadband_per_speed
+  v) (1 - deadband_shrink use)``, or the estimated sideslip exceeds ``beta_threshold`` (only when the
+  estimate is trustworthy: ``beta_std < beta_std_max``); inactive again once both are below
+  ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out
+  over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
+  yaw moment, and the law's integrators are held at 0.
+* **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
+  ``steer_authority`` and its rate to ``steer_authority_rate``, as an active front steering
+  superposition gear allows; the ECU itself knows when it limited a command (its own limit flags
+  feed the law's anti-windup, besides the actuators' flags).
+"""
+
+from __future__ import annotations
+
+from plants import G
+from plants.backend import NUMPY
+
+STATE = ("active", "hold", "blend", "steer_correction", "mu_est", "steer_saturated", "yaw_moment_saturated",
+         "ay_demand")
+"""Supervisor state: activation flag, time both errors have been below their off thresholds [s],
+blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
+the ECU's own limit flags of the last period, the linear model's lateral-acceleration demand
+through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
+is behind the steady-state demand without being saturated) [m/s^2]."""
+
+
+def initial_state(d) -> list[float]:
+    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0]
+
+
+def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY):
+    """``(mu_next, use, demand_next)``: the friction estimate after this period, the friction use
+    ``|a_y| / (mu g)`` and the lagged linear demand."""
+    k = 1.0 - o.exp(-dt / d.demand_tau)
+    demand_next = demand + (speed * gamma_ss_unlimited - demand) * k
+    a_lin = o.fabs(demand_next)
+    a = o.fabs(ay)
+    delivered = a / (d.peak_ratio * G)
+    saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin)
+    target = o.if_else(saturated > 0.5, delivered, d.mu_max)
+    tau = o.if_else(target < mu_est, d.mu_tau_down, d.mu_tau_up)
+    mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0)
+    mu_next = o.fmin(o.fmax(o.fmax(mu_next, delivered), d.mu_min), d.mu_max)
+    use = o.fmin(a / (o.fmax(mu_next, d.mu_min) * G), 1.0)
+    return mu_next, use, demand_next
+
+
+
+def yaw_moment_limit(d, mu_est, use, o=NUMPY):
+    """The yaw moment [N m] the rear motors may make this period: ``rear_grip_share`` of what the rear
+    tyres' friction circle leaves after the lateral force, ``mu W_r / 2 sqrt(1 - use^2)`` per wheel
+    (``W_r = m g l_f / L``; both axles at the car's friction use ``|a_y| / (mu g)``), times the rear
+    track (a torque difference ``+-F`` at the two wheels makes ``F t_r``); never above ``nz_max``."""
+    p = d.params
+    w_rear = p.mass * G * p.lf / (p.lf + p.lr)
+    spare = o.sqrt(o.fmax(1.0 - use * use, 0.0))
+    return o.fmin(d.rear_grip_share * mu_est * 0.5 * w_rear * spare * p.track_rear, d.nz_max)
+
+
+def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,
+              o=NUMPY):
+    """``(z_next, steer_cmd, nz_cmd, law_on)``: the commands after supervision, and whether the law's
+    integrators may run (0: hold them at 0)."""
+    active, hold, blend, corr = z[0], z[1], z[2], z[3]
+    thr_r = (d.yaw_rate_deadband + d.yaw_rate_deadband_per_speed * o.fabs(speed)) * (1.0 - d.deadband_shrink * use)
+    trusted = beta_std < d.beta_std_max
+    on = (o.fabs(yaw_rate_error) > thr_r) + trusted * (o.fabs(beta) > d.beta_threshold)
+    quiet = (o.fabs(yaw_rate_error) < d.deactivate_ratio * thr_r) * (
+        1.0 - trusted * (o.fabs(beta) >= d.deactivate_ratio * d.beta_threshold))
+    fast = speed >= d.min_speed
+    hold_next = o.if_else(active > 0.5, o.if_else(quiet > 0.5, hold + dt, 0.0), 0.0)
+    stay = (active > 0.5) * (hold_next < d.hold_time)
+    active_next = o.if_else(fast > 0.5, o.if_else(on + stay > 0.5, 1.0, 0.0), 0.0)
+    if d.always_active:
+        active_next, hold_next = 1.0 + 0.0 * speed, 0.0 * speed
+    step = dt / d.blend_time
+    blend_next = o.fmin(o.fmax(blend + o.if_else(active_next > 0.5, step, -step), 0.0), 1.0)
+    if d.always_active:
+        blend_next = 1.0 + 0.0 * speed
+    # yaw guard: while the yaw-rate error is beyond its dead band, no command may push the yaw rate
+    # further from the reference (the law's sideslip and disturbance channels, fed by estimates that
+    # fail at the limit, can ask for that); b21 > 0 and b22 > 0: a left steer or a positive moment
+    # turns the car left
+    beyond = o.fabs(yaw_rate_error) > thr_r
+    want = steer_law - steer_driver
+    want = o.if_else(beyond * (want * yaw_rate_error < 0.0) > 0.5, 0.0, want)
+    nz_law = o.if_else(beyond * (nz_law * yaw_rate_error < 0.0) > 0.5, 0.0, nz_law)
+    # the steer correction within the superposition's authority and rate
+    limited = o.fmin(o.fmax(want, -d.steer_authority), d.steer_authority)
+    rate = d.steer_authority_rate * dt
+    corr_next = o.fmin(o.fmax(limited, corr - rate), corr + rate)
+    steer_sat = o.if_else(o.fabs(corr_next - want) > 1e-9 * o.fmax(1.0, o.fabs(want)), 1.0, 0.0)
+    nz_sat = o.if_else(o.fabs(nz_law) >= nz_limit * (1.0 - 1e-9), 1.0, 0.0)
+    steer_cmd = steer_driver + blend_next * corr_next
+    nz_cmd = blend_next * nz_law
+    law_on = o.if_else(blend_next > 0.0, 1.0, 0.0)
+    corr_next = corr_next * law_on  # inactive: the correction restarts from 0
+    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None]
+    return z_next, steer_cmd, nz_cmd, law_on

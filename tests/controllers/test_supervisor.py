@@ -1,0 +1,62 @@
+"""The stability controller's supervision: no harm below the thresholds, friction on board,
+the yaw moment the rear tyres can give."""
+
+import numpy as np
+import pytest
+
+from controllers import supervisor as sup
+from controllers.two_dof import TwoDofDesign
+from plants import G, load_vehicle
+from plants.disturbances import Disturbances, Friction
+from plants.maneuvers import sine_with_dwell, step_steer
+from toolkit.simulator import simulate
+
+
+def test_below_the_thresholds_the_ecu_passes_the_driver_through_exactly():
+    # straight road with sensor noise, and a gentle step: commands are the driver's, bit for bit
+    p = load_vehicle("compact-ev")
+    for man in (step_steer(60 / 3.6, 0.0, duration=4.0), step_steer(60 / 3.6, np.radians(0.5), duration=4.0)):
+        r = simulate(p, "two-track", man, controller="two-dof", seed=4)
+        c = r.commands
+        assert np.array_equal(c["steer_cmd"], c["steer_driver"])
+        assert np.all(c["yaw_moment_cmd"] == 0.0) and np.all(c["active"] == 0.0)
+
+
+def test_the_law_switches_on_at_the_limit_and_off_again():
+    # FMVSS 126 sine with dwell at 6 A (compact-ev, mu 1): on in the manoeuvre, off once the car is
+    # straight again (measured: on at 1.1 s, off by 5.7 s of 7.6 s)
+    p = load_vehicle("compact-ev")
+    man = sine_with_dwell(80 / 3.6, np.radians(6 * 22.13) / p.steering_ratio)
+    r = simulate(p, "two-track", man, controller="two-dof")
+    a = r.commands["active"]
+    assert a.max() == 1.0 and np.all(a[-1000:] == 0.0)
+    on = np.flatnonzero(a > 0)
+    # blending: the authority ramps at 1 / blend_time per second, never jumps
+    assert np.max(np.abs(np.diff(a))) <= 1e-3 / TwoDofDesign(p.as_nominal()).blend_time + 1e-12
+    assert len(on) < len(a)
+
+
+@pytest.mark.parametrize("mu", [0.3, 0.5, 0.8])
+def test_friction_estimate_in_a_saturated_turn(mu):
+    # a 10 deg step steer at 60 km/h: far beyond the grip of each road (the linear demand is 6.6 m/s^2
+    # and more), a saturated steady turn. The ECU is not told the road; its estimate settles within 0.1
+    # of mu (measured 0.32 / 0.54 / 0.87: the accelerometer also reads the body's roll) and, once it
+    # has come down to 1.2 x mu (from mu_max, where it starts without evidence), never exceeds that
+    p = load_vehicle("compact-ev")
+    r = simulate(p, "two-track", step_steer(60 / 3.6, np.radians(10.0), start=0.5, duration=5.0), controller="none",
+                 disturbances=Disturbances(friction=Friction(mu=mu)))
+    est = r.commands["mu_est"]
+    assert np.all(np.abs(r.truth["ay"][-1000:]) > 0.85 * mu * G)  # saturated (the two-track peaks at 0.947 mu g)
+    assert abs(np.mean(est[-1000:]) - mu) < 0.1
+    down = np.flatnonzero(est <= 1.2 * mu)
+    assert len(down) and np.max(est[down[0]:]) <= 1.2 * mu
+
+
+def test_rear_grip_limits_the_yaw_moment():
+    # the friction circle: no yaw moment from saturated rear tyres, at rest the share of mu W_r / 2 t_r
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    p = d.params
+    full = d.rear_grip_share * 1.0 * 0.5 * p.mass * G * p.lf / p.wheelbase * p.track_rear
+    assert sup.yaw_moment_limit(d, 1.0, 0.0) == pytest.approx(min(full, d.nz_max), rel=1e-12)
+    assert sup.yaw_moment_limit(d, 0.5, 1.0) == 0.0
+    assert sup.yaw_moment_limit(d, 0.5, 0.6) == pytest.approx(min(0.5 * full * 0.8, d.nz_max), rel=1e-12)
