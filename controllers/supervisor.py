@@ -98,7 +98,7 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     # further from the reference (the law's sideslip and disturbance channels, fed by estimates that
     # fail at the limit, can ask for that); b21 > 0 and b22 > 0: a left steer or a positive moment
     # turns the car left
-    beyond = o.fabs(yaw_rate_error) > thr_r
+    beyond = o.fabs(yaw_rate_error) > d.guard_share * thr_r
     want = steer_law - steer_driver
     want = o.if_else(beyond * (want * yaw_rate_error < 0.0) > 0.5, 0.0, want)
     nz_law = o.if_else(beyond * (nz_law * yaw_rate_error < 0.0) > 0.5, 0.0, nz_law)

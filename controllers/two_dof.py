@@ -103,6 +103,11 @@ class TwoDofDesign:
     """Lateral-acceleration demand [m/s^2] below which saturation is not judged."""
     demand_tau: float = 0.15
     """Lag [s] of the linear lateral-acceleration demand the measured one is compared with."""
+    rollover_share: float = 0.7
+    """The reference's lateral acceleration stays below this share of the static rollover threshold
+    ``g (t_f + t_r) / (4 h)`` (when the vehicle file gives the tracks and the CG height)."""
+    guard_share: float = 0.0
+    """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
     rear_grip_share: float = 0.5
     """Share of the rear tyres' remaining grip (friction circle less the lateral use) the yaw moment
     may take: differential torque costs rear side force."""
@@ -136,6 +141,15 @@ class TwoDofDesign:
         if p.max_motor_torque is not None and p.track_rear is not None and p.wheel_radius is not None:
             return p.max_motor_torque * p.track_rear / p.wheel_radius
         return np.inf
+
+    @property
+    def ay_limit(self):
+        """Largest lateral acceleration [m/s^2] the reference asks for: ``rollover_share`` of the static
+        rollover threshold, or no limit without tracks and CG height."""
+        p = self.params
+        if p.cg_height is None or p.track_front is None or p.track_rear is None or not p.cg_height > 0:
+            return 1e6
+        return self.rollover_share * G * (p.track_front + p.track_rear) / (4.0 * p.cg_height)
 
     @property
     def kd(self) -> np.ndarray:
@@ -207,10 +221,12 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     return z_next, o.stack([delta, nz, xb, xr])
 
 
-def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
+def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = True):
     """The static reference of seed 003 eq. 23-24 with the friction limit ``|gamma_d| <= k_mu mu g / v``
     at speed ``vm`` (already held at ``min_speed``), and the model's seven coefficients there:
-    ``(beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22))``. A design that carries a speed
+    ``(beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22))`` (``limited=False``: the linear model's
+    own steady state, no friction or rollover limit). The lateral acceleration the reference asks for is
+    also held below :attr:`TwoDofDesign.ay_limit`. A design that carries a speed
     schedule reads coefficients and reference gains from its tables (the firmware's arithmetic)."""
     p = d.params
     if d.schedule is not None:
@@ -222,7 +238,9 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
         kg = vm / (L * den)
         a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
     beta_ss, gamma_ss = kb * steer_driver, kg * steer_driver
-    limit = d.friction_margin * mu * G / vm
+    if not limited:
+        return beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22)
+    limit = o.fmin(d.friction_margin * mu * G, d.ay_limit) / vm
     mag = o.fabs(gamma_ss)
     scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
     return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)

@@ -159,8 +159,9 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     sensors = SensorConfig(gps_rate=rate, gps_hdop=1.0)  # the filter's course noise at HDOP 1, as designed
     limits = ActuatorLimits(steer_tau=dt, steer_rate_max=1e9, torque_rate_max=1e12) if ideal_actuators \
         else ActuatorLimits()
-    # the loop with the law acting: the supervisor's dead bands would leave straight running uncontrolled
-    design = dataclasses.replace(design, always_active=True)
+    # the loop with the law acting: the supervisor's dead bands would leave straight running uncontrolled,
+    # and its yaw guard (a sign test on the yaw-rate error, not differentiable at zero error) is left out
+    design = dataclasses.replace(design, always_active=True, guard_share=1e6)
     spec = loop_spec(design.params, plant="bicycle", controller="two-dof", estimator=est, sensors=sensors, dt=dt,
                      design=design, truth=true_params, n_sub=ANALYSIS_SUBSTEPS, limits=limits)
     prog = program(spec)

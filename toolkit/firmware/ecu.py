@@ -116,6 +116,8 @@ _CONTROLLER_CAL = (
     ("saturation_ay_min", "m/s^2", 0.0, 20.0, "lateral-acceleration demand below which saturation is not judged"),
     ("demand_tau", "s", 0.001, 10.0, "lag of the linear lateral-acceleration demand"),
     ("rear_grip_share", "-", 0.0, 1.0, "share of the rear tyres' remaining grip the yaw moment may take"),
+    ("rollover_share", "-", 0.0, 2.0, "reference lateral acceleration as a share of the static rollover threshold"),
+    ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
     ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
     ("mu_tau_up", "s", 0.001, 100.0, "time constant of the friction estimate recovering"),
@@ -288,7 +290,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     nl = len(ctl_mod.STATE)
     z_law, z_sup = z_ctl[0:nl], z_ctl[nl:nl + len(sup_mod.STATE)]
     vm = o.fmax(g["speed"], c.min_speed)
-    _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], 1e6, o)  # the unlimited linear demand
+    _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
     mu_est, use, demand = sup_mod.friction_estimate(c, z_sup[4], z_sup[7], g["speed"], g["ay"], gamma_lin, g["dt"], o)
     mu_ref = o.fmin(mu_est, g["mu"])
     steer_flag = o.fmax(g["steer_limited"], z_sup[5])

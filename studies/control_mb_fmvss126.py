@@ -1,0 +1,65 @@
+"""FMVSS 126 on the CommonRoad multi-body cars with the firmware evstab designs for them.
+
+For ``commonroad-mb:1`` (Ford Escort) and ``commonroad-mb:3`` (VW Vanagon): the bundled nominal
+file with every cornering stiffness +40 % (a designer's model that is wrong), ``evstab design``
+on the multi-body car itself (``--plant commonroad-mb:N``, quick run), and the design folder's
+ECU (the step ``evstab export`` prints as C) in the loop through the FMVSS 126 series at 80 km/h
+on mu 1.0, 0.6 and 0.5, real rear-wheel torques, the friction not given to the ECU. Beside it
+the uncontrolled car. Writes ``mb_fmvss126_summary.md``/``.csv`` and the design folders.
+
+Run: ``python -m studies.control_mb_fmvss126 OUT_DIR [--quick]`` (quick: the mu 1.0 and 0.6
+series only, both cars; about 5 minutes on 2 cores either way, most of it the two design jobs).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from plants import load_vehicle
+from studies._common import cli, out_dir, write_table
+from toolkit.design_job import run_design
+from toolkit.firmware.export import ecu_from_design
+from toolkit.fmvss126 import find_a, run_series
+from toolkit.logio import atomic_write
+from toolkit.nominal import to_toml
+
+STIFFNESS_ERROR = 1.4
+CARS = (1, 3)
+
+
+def wrong_nominal(n: int):
+    """The bundled nominal of set ``n`` with both cornering stiffnesses times :data:`STIFFNESS_ERROR`."""
+    p = load_vehicle(f"commonroad-{n}")
+    return dataclasses.replace(p, name=f"commonroad-{n}-stiff40",
+                               cornering_stiffness_front=STIFFNESS_ERROR * p.cornering_stiffness_front,
+                               cornering_stiffness_rear=STIFFNESS_ERROR * p.cornering_stiffness_rear,
+                               source=p.source + f" Cornering stiffness x {STIFFNESS_ERROR} (a deliberately wrong model).")
+
+
+def main(out, quick: bool = False) -> list[dict]:
+    out = out_dir(out)
+    rows = []
+    for n in CARS:
+        plant = f"commonroad-mb:{n}"
+        p = wrong_nominal(n)
+        toml = out / f"{p.name}.toml"
+        atomic_write(toml, lambda fh: fh.write(to_toml(p, f"commonroad-{n} with +40 % cornering stiffness")))
+        design_dir = out / f"design-{n}"
+        run_design(str(toml), design_dir, quick=True, plant=plant, progress=False, log=lambda *a: None)
+        ecu, _ = ecu_from_design(design_dir)
+        for mu in ((1.0, 0.6) if quick else (1.0, 0.6, 0.5)):
+            a_deg = find_a(p, plant, mu)
+            _, none, v_none = run_series(p, "none", plant=plant, mu=mu, a_deg=a_deg)
+            _, ctl, v_ctl = run_series(p, "two-dof", ecu.filter.method, plant=plant, mu=mu, a_deg=a_deg, design=ecu)
+            harm = sum(1 for a, b in zip(none, ctl) if a["pass"] and not b["pass"])
+            for label, rs, v in (("none", none, v_none), ("designed firmware", ctl, v_ctl)):
+                rows.append({"car": plant, "mu": mu, "A_deg": a_deg, "controller": label,
+                             "runs_passed": sum(r["pass"] for r in rs), "runs": len(rs), "pass": v["pass"],
+                             "failed_criteria": " ".join(v["failed_criteria"]) or "-",
+                             "runs_worse_than_none": harm if label != "none" else 0})
+    write_table(rows, out / "mb_fmvss126_summary.csv", out / "mb_fmvss126_summary.md")
+    return rows
+
+
+if __name__ == "__main__":
+    cli(main)
