@@ -171,6 +171,10 @@ def test_exported_c_equals_replay_and_estimate(firmware, design_dir, ecu, which,
     np.testing.assert_array_equal(col["gps_used"], rep["gps_used"])
     # the sanitizer build computes the same numbers (no undefined behaviour changes a result)
     np.testing.assert_allclose(Y_san, Y, rtol=0, atol=tol)
+    print(f"\n{precision} {which}: largest difference from the replay: sideslip "
+          f"{np.max(np.abs(col['beta'] - rep['beta'])):.2g} rad, steer command "
+          f"{np.max(np.abs(col['steer_cmd'] - rep['steer_cmd'])):.2g} rad, yaw-moment command "
+          f"{np.max(np.abs(col['yaw_moment_cmd'] - rep['yaw_moment_cmd'])):.2g} N m")  # the README's table
     if which == "fault_log":  # the faults reached the filter: spikes gated, the 3-satellite fix dropped
         fixes = np.isfinite(np.genfromtxt(log_path, delimiter=",", names=True)["gps_course"])
         assert 0 < col["gps_used"].sum() < fixes.sum() - 2
