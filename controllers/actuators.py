@@ -4,10 +4,10 @@
   limit (road-wheel angle).
 * Motors: the direct yaw moment is made by the rear torque difference,
   ``N_z = (T_rr - T_rl) t_r / (2 R_w)``, on top of the driver's longitudinal
-  demand ``T_rl + T_rr = 2 T_mean``, which is kept. Each motor has a torque limit
-  and a torque-rate limit; what cannot be realised is reported
-  (``yaw_moment_achieved`` and the ``yaw_moment_limited`` flag), never dropped
-  silently.
+  demand ``T_rl + T_rr = 2 T_mean``, which is kept (clipped to the limit); the
+  difference is cut to the room each wheel has left. Each motor has a torque limit
+  and a torque-rate limit; what cannot be realised is reported (the achieved yaw
+  moment and the ``yaw_moment_limited`` flag), never dropped silently.
 """
 
 from __future__ import annotations
@@ -32,22 +32,6 @@ class ActuatorLimits:
     """Per-motor torque limit at the wheel [N m]; default the vehicle's max_motor_torque."""
     torque_rate_max: float = 10000.0
     """Per-motor torque rate limit [N m/s]."""
-
-
-def allocate(yaw_moment: float, t_mean: float, p: VehicleParams, torque_max: float) -> dict:
-    """Split a yaw moment over the rear motors, keeping the longitudinal demand.
-
-    Returns ``torque_rl``, ``torque_rr``, ``yaw_moment_achieved`` and ``limited``.
-    The torque difference is cut to what the per-wheel limit leaves after the
-    common-mode torque ``t_mean`` (itself clipped to the limit first).
-    """
-    t_mean = float(np.clip(t_mean, -torque_max, torque_max))
-    dt_req = yaw_moment * p.wheel_radius / p.track_rear
-    room = torque_max - abs(t_mean)
-    dt_ach = float(np.clip(dt_req, -room, room))
-    return {"torque_rl": t_mean - dt_ach, "torque_rr": t_mean + dt_ach,
-            "yaw_moment_achieved": dt_ach * p.track_rear / p.wheel_radius,
-            "limited": bool(abs(dt_ach - dt_req) > 1e-9 * max(1.0, abs(dt_req)))}
 
 
 STATE = ("steer", "torque_diff")

@@ -40,7 +40,6 @@ from plants import G, VehicleParams
 from plants.backend import NUMPY, unpack
 from plants.bicycle import lateral_coefficients, lateral_matrices
 
-from .reference import ReferenceModel
 
 
 @dataclass(frozen=True)
@@ -155,10 +154,6 @@ class TwoDofDesign:
     def kd(self) -> np.ndarray:
         return np.diag([self.k_beta, self.k_gamma])
 
-    @property
-    def reference(self) -> ReferenceModel:
-        return ReferenceModel(self.params, self.friction_margin)
-
     def gains(self, speed: float):
         """(B^-1, B^-1 Kd, -B^-1 A Kd, B^-1 A) at ``speed``: the scheduled matrices of the law."""
         A, B = lateral_matrices(self.params, max(speed, self.min_speed))
@@ -180,7 +175,6 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     tyres' remaining grip allows, :func:`controllers.supervisor.yaw_moment_limit`).
     """
     s = unpack(sig, SIGNALS)
-    p = d.params
     v = s.speed
     vm = o.fmax(v, d.min_speed)
     beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22) = reference(d, vm, s.steer_driver, s.mu, o)

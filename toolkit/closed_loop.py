@@ -36,10 +36,10 @@ import controllers.two_dof as ctl_mod
 from controllers.actuators import ActuatorLimits, actuator_law
 from controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
 from controllers.two_dof import TwoDofDesign
-from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, is_multibody, truth_params
+from plants import DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
 from plants.backend import CASADI, NUMPY
 from plants.disturbances import Disturbances, disturbance_profile
-from plants.errors import EvstabError, ModelError
+from plants.errors import EvstabError
 from plants.maneuvers import Maneuver
 from plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
 

@@ -126,7 +126,6 @@ def _heading_entries(names: list[str]) -> list[int]:
 
 def _scc_of(S: np.ndarray, seed: int) -> list[int]:
     """Indices of the strongly connected component of the directed graph ``S[i, j]`` (j -> i) that holds ``seed``."""
-    n = S.shape[0]
     def reach(adj):
         seen, stack = {seed}, [seed]
         while stack:

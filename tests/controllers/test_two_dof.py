@@ -6,9 +6,8 @@ import control
 import numpy as np
 import pytest
 
-from controllers.actuators import allocate
-from controllers.reference import ReferenceModel
-from controllers.two_dof import TwoDofDesign, allocate as allocate_commands, control_law
+from controllers.actuators import ActuatorLimits, actuator_law
+from controllers.two_dof import TwoDofDesign, allocate as allocate_commands, control_law, reference
 from plants import G, load_vehicle
 from plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
 from toolkit.stability import nominal_loop
@@ -63,26 +62,36 @@ def test_model_error_cases():
 
 
 def test_reference_model_and_friction_limit():
+    # seed 003 eq. 23-24 (the bicycle's steady-state gains), then |gamma| <= 0.85 mu g / v; the
+    # lateral acceleration asked for stays below 0.7 of the rollover threshold too (compact-ev:
+    # 0.77 g, above 0.85 x 0.5 g here)
     p = load_vehicle("compact-ev")
-    ref = ReferenceModel(p)
+    d = TwoDofDesign(p)
     kb, kg = steady_state_gains(p, 20.0)
-    assert ref(0.01, 20.0, 1.0) == pytest.approx((kb * 0.01, kg * 0.01), rel=1e-12)
-    beta, gamma = ref(0.2, 20.0, 0.5)
+    beta, gamma, _ = reference(d, 20.0, 0.01, 1.0)
+    assert (beta, gamma) == pytest.approx((kb * 0.01, kg * 0.01), rel=1e-12)
+    beta, gamma, _ = reference(d, 20.0, 0.2, 0.5)
     assert gamma == pytest.approx(0.85 * 0.5 * G / 20.0, rel=1e-12)
     assert beta / gamma == pytest.approx(kb / kg, rel=1e-12)  # same steady turn
+    _, gamma, _ = reference(d, 20.0, 0.2, 2.0)  # friction beyond the rollover limit: that limit holds
+    assert gamma * 20.0 == pytest.approx(d.ay_limit, rel=1e-12)
 
 
 def test_allocation_meets_torque_limits():
+    # the motors' allocation in the actuator law: common torque kept (clipped), the difference cut to
+    # the room each wheel has left; a 1 s sample so the torque-rate limit (10,000 N m/s) does not act
     p = load_vehicle("compact-ev")
     rng = np.random.default_rng(1)
+    lim = ActuatorLimits()
     for _ in range(200):
         nz, tm = rng.uniform(-8000, 8000), rng.uniform(-1200, 1200)
-        a = allocate(nz, tm, p, 900.0)
-        assert abs(a["torque_rl"]) <= 900.0 + 1e-9 and abs(a["torque_rr"]) <= 900.0 + 1e-9
-        assert (a["torque_rl"] + a["torque_rr"]) / 2 == pytest.approx(np.clip(tm, -900, 900), abs=1e-9)
-        ach = (a["torque_rr"] - a["torque_rl"]) * p.track_rear / (2 * p.wheel_radius)
-        assert ach == pytest.approx(a["yaw_moment_achieved"], abs=1e-9)
-        assert a["limited"] == (abs(ach - nz) > 1e-6)
+        z, out = actuator_law(p, lim, 900.0, np.zeros(2), np.array([0.0, nz, tm, 1.0]))
+        t_mean = np.clip(tm, -900.0, 900.0)
+        t_rl, t_rr = t_mean - z[1], t_mean + z[1]
+        assert abs(t_rl) <= 900.0 + 1e-9 and abs(t_rr) <= 900.0 + 1e-9
+        ach = (t_rr - t_rl) * p.track_rear / (2 * p.wheel_radius)
+        assert ach == pytest.approx(out[1], abs=1e-9)
+        assert (out[3] > 0.5) == (abs(ach - nz) > 1e-6)
 
 
 def test_controller_tracks_on_the_nominal_bicycle():
@@ -92,8 +101,7 @@ def test_controller_tracks_on_the_nominal_bicycle():
     A, B = lateral_matrices(p, 20.0)
     x = np.zeros(2)
     st = np.zeros(6)
-    ref = ReferenceModel(p)
-    xd = np.array(ref(0.02, 20.0, 1.0))
+    xd = np.array(reference(d, 20.0, 0.02, p.mu)[:2])
     errs = []
     for k in range(3000):
         st, out = control_law(d, st, np.array([20.0, 0.02, x[0], x[1], 0.0, 0.0, p.mu, 0.0, 0.0]))
