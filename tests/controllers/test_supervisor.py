@@ -60,3 +60,24 @@ def test_rear_grip_limits_the_yaw_moment():
     assert sup.yaw_moment_limit(d, 1.0, 0.0) == pytest.approx(min(full, d.nz_max), rel=1e-12)
     assert sup.yaw_moment_limit(d, 0.5, 1.0) == 0.0
     assert sup.yaw_moment_limit(d, 0.5, 0.6) == pytest.approx(min(0.5 * full * 0.8, d.nz_max), rel=1e-12)
+
+
+def test_yaw_guard_and_steer_authority():
+    # while the law acts, a command that would push the yaw rate further from the reference is dropped
+    # (b21, b22 > 0: left steer and positive moment turn the car left), and the steer correction
+    # stays within the authority and its rate
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    dt = 1e-3
+    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]  # active, fully blended, no correction yet
+    # the car yaws too little to the left (error > 0): a right correction and a negative moment are dropped
+    zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.0, -500.0, 1e4, dt)
+    assert steer == 0.02 and nz == 0.0
+    # the same error with commands that help: passed, the correction rate-limited to authority_rate dt
+    zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.5, 500.0, 1e4, dt)
+    assert nz == 500.0 and steer == pytest.approx(0.02 + d.steer_authority_rate * dt, rel=1e-12)
+    # after long enough the correction sits at the authority, not at the law's 0.48 rad
+    for _ in range(2000):
+        zn, steer, nz, _ = sup.supervise(d, zn, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.5, 500.0, 1e4, dt)
+        zn[4], zn[7] = 1.0, 0.0
+    assert steer == pytest.approx(0.02 + d.steer_authority, rel=1e-12)
+    assert zn[5] == 1.0  # and the ECU knows its steer is limited (its own flag for the law's anti-windup)
