@@ -129,7 +129,7 @@ def main() -> None:
     p = load_vehicle("compact-ev")
     man = make_maneuver("sine-lane-change", p, 60 / 3.6, np.radians(3.0))
     log = simulate(p, "two-track", man, sensors=SensorConfig(gps_outages=((2.0, 4.0),)), seed=1).log_columns()
-    U = ecu_inputs(log, p.mu)
+    U = ecu_inputs(log, p.mu, wheel_radius=p.wheel_radius)
     n = len(U)
     inputs = tmp / "inputs.csv"
     write_inputs_csv(str(inputs), U)

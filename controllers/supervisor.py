@@ -21,6 +21,8 @@ the model-following law of seed 003 acts only when the car needs it.
   ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out
   over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
   yaw moment, and the law's integrators are held at 0.
+* **Slip control** (:func:`slip_authority`): the yaw moment is withdrawn while a rear wheel slips
+  beyond ``slip_max``, so it never spins or locks a rear wheel.
 * **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
   ``steer_authority`` and its rate to ``steer_authority_rate``, as an active front steering
   superposition gear allows; the ECU itself knows when it limited a command (its own limit flags
@@ -33,16 +35,17 @@ from plants import G
 from plants.backend import NUMPY
 
 STATE = ("active", "hold", "blend", "steer_correction", "mu_est", "steer_saturated", "yaw_moment_saturated",
-         "ay_demand")
+         "ay_demand", "slip_authority")
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
 the ECU's own limit flags of the last period, the linear model's lateral-acceleration demand
 through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
-is behind the steady-state demand without being saturated) [m/s^2]."""
+is behind the steady-state demand without being saturated) [m/s^2], the yaw moment's
+authority left by the rear wheels' slip [0-1]."""
 
 
 def initial_state(d) -> list[float]:
-    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0]
+    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0, 1.0]
 
 
 def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY):
@@ -72,6 +75,17 @@ def yaw_moment_limit(d, mu_est, use, o=NUMPY):
     w_rear = p.mass * G * p.lf / (p.lf + p.lr)
     spare = o.sqrt(o.fmax(1.0 - use * use, 0.0))
     return o.fmin(d.rear_grip_share * mu_est * 0.5 * w_rear * spare * p.track_rear, d.nz_max)
+
+
+def slip_authority(d, k, speed, omega_rl, omega_rr, wheel_radius, dt, o=NUMPY):
+    """The yaw moment's authority after this period, 0-1: slip control of the rear motors. A rear wheel
+    whose slip ``(omega R_w - v) / max(v, 3 m/s)`` exceeds ``slip_max`` either way (spinning under the
+    drive torque or locking under the brake torque the yaw moment adds) takes the authority to 0 in
+    ``slip_cut_time``; it comes back in ``slip_recover_time`` once both wheels are below the bound."""
+    ref = o.fmax(speed, 3.0)
+    slip = o.fmax(o.fabs(omega_rl * wheel_radius - speed), o.fabs(omega_rr * wheel_radius - speed)) / ref
+    step = o.if_else(slip > d.slip_max, -dt / d.slip_cut_time, dt / d.slip_recover_time)
+    return o.fmin(o.fmax(k + step, 0.0), 1.0)
 
 
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,
@@ -112,5 +126,5 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     nz_cmd = blend_next * nz_law
     law_on = o.if_else(blend_next > 0.0, 1.0, 0.0)
     corr_next = corr_next * law_on  # inactive: the correction restarts from 0
-    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None]
+    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None, None]
     return z_next, steer_cmd, nz_cmd, law_on

@@ -105,6 +105,12 @@ class TwoDofDesign:
     rollover_share: float = 0.7
     """The reference's lateral acceleration stays below this share of the static rollover threshold
     ``g (t_f + t_r) / (4 h)`` (when the vehicle file gives the tracks and the CG height)."""
+    slip_max: float = 0.1
+    """Rear wheel slip [-] beyond which the yaw moment is withdrawn (slip control)."""
+    slip_cut_time: float = 0.05
+    """[s] for the yaw moment's authority to fall to 0 while a rear wheel slips."""
+    slip_recover_time: float = 0.5
+    """[s] for it to come back."""
     guard_share: float = 0.0
     """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
     rear_grip_share: float = 0.5
@@ -126,7 +132,8 @@ class TwoDofDesign:
             raise ValueError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
             raise ValueError(f"control period must be > 0 s, got {self.dt}")
-        for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau"):
+        for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
+                     "slip_cut_time", "slip_recover_time"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0 < self.mu_min <= self.mu_max:

@@ -168,7 +168,7 @@ def _replay(args):
     d, _ = ecu_from_design(args.design)
     log = read_log(args.log, LOG_COLUMNS, args.channel_map).without_truth()
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
-    U = ecu_inputs(log, mu, d.filter.dt_nominal)
+    U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
     prog = ecu_program(d)
     Y = prog.run(U)
     _require_finite(args.log, log["t"], {name: Y[:, OUTPUT_NAMES.index(name)] for name in

@@ -318,6 +318,10 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "gps_sats": o.if_else(fix > 0.5, float(spec.sensors.gps_sats), 99.0), "steer_cmd_driver": steer_drv,
              "yaw_moment_applied": m["yaw_moment"], "steer_limited": flags[0], "yaw_moment_limited": flags[1],
              "mu": case["mu_assumed"]}
+        if radius is None:  # a plant without wheels: no rear wheel speeds, so no slip
+            g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.ecu.wheel_radius
+        else:
+            g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
         z_ecu_n, e = ecu.step(z_ecu, o.stack([g[k] for k in ECU_INPUTS]), tr, cal, o)
         out = {name: e[i] for i, name in enumerate(ECU_OUTPUTS)}
         steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]

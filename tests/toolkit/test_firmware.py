@@ -205,7 +205,7 @@ def test_replay_compiled_equals_numpy_reference(ecu, fault_log):
     cols, _ = fault_log
     n = len(cols["t"])
     sl = slice(n // 2 - 300, n // 2 + 1200)  # standstill, creep and fixes
-    U = ecu_inputs(cols, MU)[sl]
+    U = ecu_inputs(cols, MU, wheel_radius=ecu.wheel_radius)[sl]
     Y_c = ecu_program(ecu).run(U)
     Y_np = ecu_program(ecu, "numpy").run(U)
     # same operations in the same order, casadi folds constants where numpy does not: 1e-12 relative
@@ -372,6 +372,7 @@ def test_ecu_signs_follow_iso_8855(ecu):
     u = np.zeros(len(INPUT_NAMES))
     g = dict(zip(INPUT_NAMES, range(len(INPUT_NAMES))))
     u[g["dt"]], u[g["speed"]], u[g["gps_hdop"]], u[g["gps_sats"]], u[g["mu"]] = 1e-3, 20.0, 1.0, 10, 1.0
+    u[g["wheel_speed_rl"]] = u[g["wheel_speed_rr"]] = 20.0 / ecu.wheel_radius  # rolling, no slip
     u[g["yaw_rate"]] = 0.05
     z = ecu.initial_state()
     for _ in range(50):

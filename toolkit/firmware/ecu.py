@@ -55,6 +55,8 @@ INPUTS = (
     ("steer_limited", "-", "int", "1 when the steer actuator was at a limit in the last period"),
     ("yaw_moment_limited", "-", "int", "1 when the motors were at a torque limit in the last period"),
     ("mu", "-", "real", "friction from a road sensor, an upper bound on the ECU's estimate (none: the design's mu_max)"),
+    ("wheel_speed_rl", "rad/s", "real", "rear-left wheel speed (speed / wheel radius without a sensor: no slip control)"),
+    ("wheel_speed_rr", "rad/s", "real", "rear-right wheel speed (speed / wheel radius without a sensor: no slip control)"),
 )
 OUTPUTS = (
     ("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
@@ -117,6 +119,9 @@ _CONTROLLER_CAL = (
     ("demand_tau", "s", 0.001, 10.0, "lag of the linear lateral-acceleration demand"),
     ("rear_grip_share", "-", 0.0, 1.0, "share of the rear tyres' remaining grip the yaw moment may take"),
     ("rollover_share", "-", 0.0, 2.0, "reference lateral acceleration as a share of the static rollover threshold"),
+    ("slip_max", "-", 0.0, 10.0, "rear wheel slip beyond which the yaw moment is cut"),
+    ("slip_cut_time", "s", 0.001, 10.0, "time the yaw-moment authority takes to fall to 0 while a rear wheel slips"),
+    ("slip_recover_time", "s", 0.001, 100.0, "time it takes to come back once the slip is below slip_max"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
     ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
@@ -302,7 +307,10 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
         c, z_sup, g["speed"], z_law[3] - est["yaw_rate"], est["beta"], est["beta_std"], use, g["steer_cmd_driver"],
         law[0], law[1], nz_limit, g["dt"], o)
-    sup_n[4], sup_n[7] = mu_est, demand
+    k_slip = sup_mod.slip_authority(c, z_sup[8], g["speed"], g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius,
+                                    g["dt"], o)
+    nz_cmd = nz_cmd * k_slip
+    sup_n[4], sup_n[7], sup_n[8] = mu_est, demand, k_slip
     # the law's integrators run only while it has authority
     z_law_n = o.stack([z_law_n[0] * law_on, z_law_n[1] * law_on] + [z_law_n[i] for i in range(2, nl)])
     diff = o.fmin(o.fmax(nz_cmd * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)

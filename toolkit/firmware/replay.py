@@ -30,15 +30,16 @@ from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
 
 CHUNK = 2000
 LOG_COLUMNS = ("ay", "yaw_moment", "gps_speed", "gps_hdop", "gps_sats", "steer_driver", "steer_limited_last",
-               "yaw_moment_limited_last")
+               "yaw_moment_limited_last", "wheel_speed_rl", "wheel_speed_rr")
 """Optional drive-log columns the replay reads (besides the schema's required ones)."""
 
 
-def ecu_inputs(log, mu: float, dt0: float = 1e-3) -> np.ndarray:
+def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = None) -> np.ndarray:
     """The (N, len(INPUTS)) ECU input matrix of a drive log (a :class:`DriveLog` or a mapping of columns).
 
     ``dt`` of the first row is the second row's spacing (``dt0`` for a one-row log);
-    no fix where ``gps_course`` is NaN; HDOP 1 and 99 satellites where unknown.
+    no fix where ``gps_course`` is NaN; HDOP 1 and 99 satellites where unknown; rear wheel
+    speeds ``speed / wheel_radius`` (no slip) where the log has none (``wheel_radius``: the ECU's).
     """
     cols = log.columns if hasattr(log, "columns") else log
     get = lambda k: np.asarray(cols[k], float) if k in cols else None  # noqa: E731
@@ -68,6 +69,14 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3) -> np.ndarray:
     col["steer_limited"][:] = opt("steer_limited_last", 0.0)
     col["yaw_moment_limited"][:] = opt("yaw_moment_limited_last", 0.0)
     col["mu"][:] = mu
+    for side in ("rl", "rr"):
+        w = get(f"wheel_speed_{side}")
+        if w is None or not np.all(np.isfinite(w)):
+            if wheel_radius is None:
+                raise ValueError(f"the log has no (finite) wheel_speed_{side} column; give the ECU's wheel radius")
+            fill = col["speed"] / wheel_radius
+            w = fill if w is None else np.where(np.isfinite(w), w, fill)
+        col[f"wheel_speed_{side}"][:] = w
     return U
 
 
@@ -124,7 +133,7 @@ def ecu_program(d: EcuDesign, backend: str = "auto") -> EcuProgram:
 def replay(d: EcuDesign, log, mu: float | None = None, backend: str = "auto") -> dict:
     """Run the ECU over a drive log; returns ``t`` and the :data:`OUTPUTS` columns."""
     mu = d.controller.params.mu if mu is None else mu
-    U = ecu_inputs(log, mu, d.filter.dt_nominal)
+    U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
     Y = ecu_program(d, backend).run(U)
     cols = log.columns if hasattr(log, "columns") else log
     out = {"t": np.asarray(cols["t"], float)}
