@@ -36,10 +36,17 @@ from toolkit.compiled import compiler
 from toolkit.design_job import basic_design_document
 from toolkit.estimation import design_filter
 from toolkit.firmware.csource import write_inputs_csv
-from toolkit.firmware.ecu import OUTPUT_NAMES
+from toolkit.firmware.ecu import INPUTS, OUTPUT_NAMES
 from toolkit.firmware.export import ecu_from_design, export_design
 from toolkit.firmware.replay import ecu_inputs, ecu_program
 from toolkit.simulator import simulate
+
+def _timer_source() -> str:
+    """The timing harness, its input rows read in :data:`toolkit.firmware.ecu.INPUTS` order."""
+    assign = "\n".join(f"        in[k].{name} = {'(int)' if ctype == 'int' else ''}v[{i}];"
+                       for i, (name, _, ctype, _) in enumerate(INPUTS))
+    return TIMER.replace("N_INPUTS", str(len(INPUTS))).replace("ASSIGN", assign)
+
 
 TIMER = r"""
 #define _POSIX_C_SOURCE 199309L
@@ -61,20 +68,17 @@ int main(int argc, char **argv)
     long n = atol(argv[2]), k;
     int passes = atoi(argv[3]), p, i;
     evstab_input_t *in = malloc((size_t)n * sizeof *in);
-    double v[15], best = 1e30, check = 0.0;
+    double v[N_INPUTS], best = 1e30, check = 0.0;
     char line[4096];
     evstab_state_t s;
     evstab_output_t out;
     (void)argc;
     if (fgets(line, sizeof line, f) == NULL) return 2;
     for (k = 0; k < n; ++k) {
-        for (i = 0; i < 15; ++i) {
-            if (fscanf(f, i < 14 ? "%lf," : "%lf", &v[i]) != 1) return 2;
+        for (i = 0; i < N_INPUTS; ++i) {
+            if (fscanf(f, i < N_INPUTS - 1 ? "%lf," : "%lf", &v[i]) != 1) return 2;
         }
-        in[k].dt = v[0]; in[k].speed = v[1]; in[k].steer = v[2]; in[k].yaw_rate = v[3]; in[k].ay = v[4];
-        in[k].gps_valid = (int)v[5]; in[k].gps_course = v[6]; in[k].gps_speed = v[7]; in[k].gps_hdop = v[8];
-        in[k].gps_sats = (int)v[9]; in[k].steer_cmd_driver = v[10]; in[k].yaw_moment_applied = v[11];
-        in[k].steer_limited = (int)v[12]; in[k].yaw_moment_limited = (int)v[13]; in[k].mu = v[14];
+ASSIGN
     }
     for (p = 0; p < passes; ++p) {
         double t0, t1;
@@ -149,7 +153,7 @@ def main() -> None:
         export_design(design, out, ("c",), precision)
         for label, defs in (("calibratable (volatile)", []), ("folded (static const)", ["-DEVSTAB_CALIBRATION=static const"])):
             exe = out / "timer"
-            (out / "timer.c").write_text(TIMER)
+            (out / "timer.c").write_text(_timer_source())
             subprocess.run([cc, "-std=c99", "-O2", *defs, "-o", str(exe), str(out / "evstab_firmware.c"),
                             str(out / "timer.c"), "-lm"], check=True)
             ns = float(subprocess.run([str(exe), str(inputs), str(n), "20"], capture_output=True, text=True,
