@@ -111,6 +111,10 @@ class TwoDofDesign:
     """[s] for the yaw moment's authority to fall to 0 while a rear wheel slips."""
     slip_recover_time: float = 0.5
     """[s] for it to come back."""
+    ay_headroom: float = 1.25
+    """[m/s^2] above the measured lateral acceleration (and ``ay_headroom_share`` of it) the yaw-rate
+    reference may ask for: a reference beyond ``|a_y| / v`` asks for a growing slide."""
+    ay_headroom_share: float = 0.1
     guard_share: float = 0.0
     """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
     rear_grip_share: float = 0.5

@@ -86,9 +86,9 @@ def test_yaw_guard_and_steer_authority():
 def test_slip_control_keeps_the_rear_wheels_rolling():
     # mu 0.3, 60 km/h, sine with dwell at 5 A: the law saturates its yaw moment (4,413 N m, above
     # 2,000 N m); with the rear-grip limit switched off, only slip control stands between that demand
-    # and the rear tyres. Without it (slip_max huge) a rear wheel slips 0.48 and the car slides to 48
-    # deg; with it (bound 0.1) the peak is 0.23 (measured: the motors' 10,000 N m/s torque rate limits
-    # how fast the cut takes effect) and the sideslip 7.4 deg
+    # and the rear tyres. Without it (slip_max huge) a rear wheel spins up to a slip of 2.2; with it
+    # (bound 0.1) the peak is 0.19 (measured: the motors' 10,000 N m/s torque rate limits how fast
+    # the cut takes effect) and the sideslip smaller (2.3 against 6.1 deg)
     p = load_vehicle("compact-ev")
     man = sine_with_dwell(60 / 3.6, np.radians(5 * 22.0) / p.steering_ratio)
     dist = Disturbances(friction=Friction(mu=0.3))
@@ -102,6 +102,6 @@ def test_slip_control_keeps_the_rear_wheels_rolling():
         return slip, np.abs(r.commands["yaw_moment_cmd"]).max(), np.degrees(np.abs(r.truth["beta"]).max())
 
     free, demand, beta_free = run(slip_max=1e6)
-    assert demand > 2000.0 and free > 0.4 and beta_free > 30.0
+    assert demand > 2000.0 and free > 1.0
     held, _, beta_held = run()
-    assert held < 0.25 and beta_held < 10.0
+    assert held < 0.25 and beta_held < beta_free

@@ -32,6 +32,7 @@ from controllers import two_dof as ctl_mod
 from controllers.schedule import ROWS, SpeedSchedule
 from controllers.two_dof import TwoDofDesign, control_law, reference
 from plants.backend import CASADI, NUMPY
+from plants import G
 from plants.errors import ModelError
 
 from ..compiled import with_fields
@@ -122,6 +123,8 @@ _CONTROLLER_CAL = (
     ("slip_max", "-", 0.0, 10.0, "rear wheel slip beyond which the yaw moment is cut"),
     ("slip_cut_time", "s", 0.001, 10.0, "time the yaw-moment authority takes to fall to 0 while a rear wheel slips"),
     ("slip_recover_time", "s", 0.001, 100.0, "time it takes to come back once the slip is below slip_max"),
+    ("ay_headroom", "m/s^2", 0.0, 20.0, "lateral acceleration above the measured one the yaw-rate reference may ask for"),
+    ("ay_headroom_share", "-", 0.0, 10.0, "... plus this share of the measured one"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
     ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
@@ -298,6 +301,9 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
     mu_est, use, demand = sup_mod.friction_estimate(c, z_sup[4], z_sup[7], g["speed"], g["ay"], gamma_lin, g["dt"], o)
     mu_ref = o.fmin(mu_est, g["mu"])
+    # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
+    # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
+    mu_ref = o.fmin(mu_ref, (o.fabs(g["ay"]) * (1.0 + c.ay_headroom_share) + c.ay_headroom) / (c.friction_margin * G))
     steer_flag = o.fmax(g["steer_limited"], z_sup[5])
     nz_flag = o.fmax(g["yaw_moment_limited"], z_sup[6])
     sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"], mu_ref,
