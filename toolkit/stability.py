@@ -34,6 +34,7 @@ from controllers.two_dof import TwoDofDesign
 from plants import VehicleParams
 from plants.bicycle import lateral_matrices
 
+from .estimation.kalman import layout as kalman_layout
 from .estimation.spec import FilterDesign
 
 
@@ -102,11 +103,6 @@ class LoopLinearisation:
     """Eigenvalues of the loop states outside the feedback core (sources and sinks of the loop:
     reference lag, positions, unused GPS slots, logged copies)."""
     samples: int
-
-
-def kalman_layout(f):
-    from .estimation.kalman import layout
-    return layout(f)
 
 
 def analysis_states(spec) -> list[int]:

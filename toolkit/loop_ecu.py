@@ -1,0 +1,148 @@
+"""The ECU in the stability loop: the firmware's ECU step and its variants (:class:`LoopEcu`).
+
+:func:`toolkit.closed_loop.loop_step` calls :meth:`LoopEcu.step` once per period; ``kind``
+``two-dof`` is exactly :func:`toolkit.firmware.ecu.ecu_step`, what ``evstab export`` prints as C.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import controllers.supervisor as sup_mod
+import controllers.two_dof as ctl_mod
+from controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
+from controllers.two_dof import TwoDofDesign
+from plants import VehicleParams
+from plants.backend import NUMPY
+from plants.errors import EvstabError
+
+from .estimation import design_filter
+from .estimation import kalman as kal_mod
+from .estimation.spec import FilterDesign
+from .firmware.ecu import (FIRMWARE_METHODS, INPUT_NAMES as ECU_INPUTS, OUTPUT_NAMES as ECU_OUTPUTS, EcuDesign,
+                           ecu_control, ecu_estimate)
+
+CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
+
+
+class LoopError(EvstabError, ValueError):
+    """A loop was asked for something it cannot run (named in the message)."""
+
+
+# ------------------------------------------------------------------------ the ECU in the loop
+@dataclass(frozen=True)
+class LoopEcu:
+    """What the loop runs as its ECU.
+
+    ``kind``:
+
+    * ``two-dof`` — the firmware's ECU step (:func:`toolkit.firmware.ecu.ecu_step`): what
+      ``evstab export`` prints as C;
+    * ``none`` — the same filter (its estimates are logged), the driver's steer passed through,
+      no yaw moment;
+    * ``yaw-pi`` — the same filter, yaw-rate PI on the direct yaw moment
+      (:func:`controllers.baselines.yaw_pi_law`), the driver's steer;
+    * ``two-dof-true`` — the 2-DOF law on the true sideslip and yaw rate (no filter): the
+      controller's best case;
+    * ``driver`` — no ECU and no actuators: the driver's steer straight to the plant.
+    """
+
+    kind: str
+    ecu: EcuDesign | None = None
+
+    def __post_init__(self):
+        if self.kind not in CONTROLLERS + ("driver",):
+            raise LoopError(f"unknown controller '{self.kind}'; known: {', '.join(CONTROLLERS)}")
+        if self.kind != "driver" and self.ecu is None:
+            raise LoopError(f"controller '{self.kind}' needs an ECU design")
+
+    @property
+    def has_filter(self) -> bool:
+        return self.kind in ("two-dof", "none", "yaw-pi")
+
+    @property
+    def sizes(self) -> tuple[int, int]:
+        """(filter state, controller state) sizes."""
+        if self.kind == "driver":
+            return 0, 0
+        ne = self.ecu.layout["controller"] if self.has_filter else 0
+        nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE) + len(sup_mod.STATE)
+        return ne, nc
+
+    @property
+    def n_state(self) -> int:
+        return sum(self.sizes)
+
+    def calibration_names(self) -> tuple[str, ...]:
+        return () if self.ecu is None else tuple(c.name for c in self.ecu.calibration())
+
+    def calibration_values(self) -> np.ndarray:
+        return np.zeros(0) if self.ecu is None else np.array([c.value for c in self.ecu.calibration()])
+
+    def initial_state(self) -> np.ndarray:
+        ne, nc = self.sizes
+        z = np.zeros(ne + nc)
+        if ne:
+            z[:ne] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
+        if self.kind not in ("driver", "yaw-pi"):
+            z[ne + len(ctl_mod.STATE):] = sup_mod.initial_state(self.ecu.controller)
+        return z
+
+    def step(self, z, u, truth: dict, cal, o=NUMPY):
+        """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
+        ``cal`` the calibration values (numbers or symbols); ``truth`` is read by ``two-dof-true`` only."""
+        d = self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
+        ne, nc = self.sizes
+        zero = 0.0 * u[0]
+        if self.has_filter:
+            z_est_n, est = ecu_estimate(d, z[0:ne], u, o)
+        else:
+            z_est_n = None
+            est = {"beta": truth["beta"], "yaw_rate": truth["yaw_rate"], "yaw": truth["yaw"], "d1": zero,
+                   "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero}
+        z_ctl = z[ne:ne + nc]
+        if self.kind == "yaw-pi":
+            g = {name: u[i] for i, name in enumerate(ECU_INPUTS)}
+            sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"],
+                           g["mu"], g["steer_limited"], g["yaw_moment_limited"]])
+            z_ctl_n, c = yaw_pi_law(d.controller, z_ctl, sig, o)
+            diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
+            y = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"],
+                         est["beta_std"], est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3], 1.0 + zero, g["mu"]])
+        else:
+            z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
+            if self.kind == "none":  # pass the driver through; keep the reference for comparison
+                ys = [y[i] for i in range(len(ECU_OUTPUTS))]
+                ys[ECU_OUTPUTS.index("steer_cmd")] = u[ECU_INPUTS.index("steer_cmd_driver")]
+                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
+                    ys[ECU_OUTPUTS.index(name)] = zero
+                y = o.stack(ys)
+                z_ctl_n = o.stack([zero, zero] + [z_ctl_n[i] for i in range(2, nc)])
+        z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
+        return z_next, y
+
+
+def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: str | FilterDesign = "dakf",
+             latency: float = 0.0, design: TwoDofDesign | EcuDesign | None = None) -> LoopEcu:
+    """The ECU a loop runs: ``design`` if it is an :class:`EcuDesign` (a design folder's, say),
+    else the firmware ECU made of ``estimator`` (a method designed for ``nominal`` with the GPS
+    ``latency`` it compensates, or a designed filter) and ``design`` (default seed 003's gains),
+    on the speed schedule of ``nominal``."""
+    if kind == "driver":
+        return LoopEcu("driver")
+    if kind not in CONTROLLERS:
+        raise LoopError(f"unknown controller '{kind}'; known: {', '.join(CONTROLLERS)}")
+    if isinstance(design, EcuDesign):
+        return LoopEcu(kind, design)
+    filt = estimator if isinstance(estimator, FilterDesign) else None
+    if filt is None:
+        if estimator not in FIRMWARE_METHODS:
+            raise LoopError(f"the loop runs the ECU step, whose filter is one of {', '.join(FIRMWARE_METHODS)}; "
+                            f"got estimator '{estimator}' (other methods run on logs: evstab estimate)")
+        filt = design_filter(estimator, nominal, dt=dt, latency=latency)
+    ctl = design if design is not None else TwoDofDesign(nominal.as_nominal(), dt=dt)
+    ctl.params.require("track_rear", "wheel_radius", "max_motor_torque", model="the stability loop's ECU "
+                       "(yaw-moment split over the rear motors)")
+    return LoopEcu(kind, EcuDesign.from_designs(filt, ctl))
