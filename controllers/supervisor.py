@@ -35,17 +35,17 @@ from plants import G
 from plants.backend import NUMPY
 
 STATE = ("active", "hold", "blend", "steer_correction", "mu_est", "steer_saturated", "yaw_moment_saturated",
-         "ay_demand", "slip_authority")
+         "ay_demand", "slip_authority", "slip_lag")
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
 the ECU's own limit flags of the last period, the linear model's lateral-acceleration demand
 through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
 is behind the steady-state demand without being saturated) [m/s^2], the yaw moment's
-authority left by the rear wheels' slip [0-1]."""
+authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-]."""
 
 
 def initial_state(d) -> list[float]:
-    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0, 1.0]
+    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0, 1.0, 0.0]
 
 
 def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY):
@@ -77,15 +77,31 @@ def yaw_moment_limit(d, mu_est, use, o=NUMPY):
     return o.fmin(d.rear_grip_share * mu_est * 0.5 * w_rear * spare * p.track_rear, d.nz_max)
 
 
-def slip_authority(d, k, speed, omega_rl, omega_rr, wheel_radius, dt, o=NUMPY):
-    """The yaw moment's authority after this period, 0-1: slip control of the rear motors. A rear wheel
-    whose slip ``(omega R_w - v) / max(v, 3 m/s)`` exceeds ``slip_max`` either way (spinning under the
-    drive torque or locking under the brake torque the yaw moment adds) takes the authority to 0 in
-    ``slip_cut_time``; it comes back in ``slip_recover_time`` once both wheels are below the bound."""
+def slip_authority(d, k, slip_lag, speed, omega_rl, omega_rr, wheel_radius, dt, o=NUMPY):
+    """The yaw moment's authority after this period, 0-1: slip control of the rear motors, on the slip
+    of the worse rear wheel, ``|omega R_w - v| / max(v, 3 m/s)`` (spinning under the drive torque or
+    locking under the brake torque the yaw moment adds).
+
+    The slip predicted ``slip_lead_time`` ahead from its growth sets a target
+    authority that is 1 up to ``slip_onset`` x ``slip_max`` and falls linearly to 0 at ``slip_max``:
+    the moment is withdrawn while the slip grows, before it reaches the bound (a cut that starts at
+    the bound comes too late for a motor with a finite torque rate and a wheel that, once its tyre
+    saturates, spins up within tens of milliseconds). The authority falls towards the target at up to
+    ``1 / slip_cut_time`` per second and recovers at up to ``1 / slip_recover_time``.
+
+    The growth is the slip minus its first-order lag of time constant ``slip_lead_time``
+    (``slip_lag``, the state): for a slip that grows at a steady rate that difference is the rate
+    times the time constant, the prediction ``slip_lead_time`` ahead, and unlike a difference of two
+    samples it does not amplify the wheel-speed sensors' noise. Returns ``(authority_next,
+    slip_lag_next)``."""
     ref = o.fmax(speed, 3.0)
     slip = o.fmax(o.fabs(omega_rl * wheel_radius - speed), o.fabs(omega_rr * wheel_radius - speed)) / ref
-    step = o.if_else(slip > d.slip_max, -dt / d.slip_cut_time, dt / d.slip_recover_time)
-    return o.fmin(o.fmax(k + step, 0.0), 1.0)
+    predicted = slip + o.fmax(slip - slip_lag, 0.0)
+    lag_next = slip_lag + (slip - slip_lag) * o.fmin(dt / d.slip_lead_time, 1.0)
+    onset = d.slip_onset * d.slip_max
+    target = o.fmin(o.fmax((d.slip_max - predicted) / o.fmax(d.slip_max - onset, 1e-9), 0.0), 1.0)
+    step = o.fmin(o.fmax(target - k, -dt / d.slip_cut_time), dt / d.slip_recover_time)
+    return o.fmin(o.fmax(k + step, 0.0), 1.0), lag_next
 
 
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,
@@ -126,5 +142,5 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     nz_cmd = blend_next * nz_law
     law_on = o.if_else(blend_next > 0.0, 1.0, 0.0)
     corr_next = corr_next * law_on  # inactive: the correction restarts from 0
-    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None, None]
+    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None, None, None]
     return z_next, steer_cmd, nz_cmd, law_on

@@ -42,6 +42,12 @@ from plants.bicycle import lateral_coefficients, lateral_matrices
 
 
 
+STEER_AUTHORITY = float(np.deg2rad(20.0))
+"""Default steer authority [rad road wheel] where the vehicle file gives none."""
+STEER_AUTHORITY_RATE = float(np.deg2rad(100.0))
+"""Default steer-authority rate [rad/s] where the vehicle file gives none."""
+
+
 @dataclass(frozen=True)
 class TwoDofDesign:
     """Frozen controller design (gains and realisation)."""
@@ -86,13 +92,15 @@ class TwoDofDesign:
     """... for this long [s]."""
     blend_time: float = 0.1
     """The law's authority ramps in and out over this time [s]."""
-    steer_authority: float = np.deg2rad(20.0)
-    """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's. FMVSS 126 on
+    steer_authority: float | None = None
+    """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's; None: the
+    vehicle file's ``steer_authority``, else :data:`STEER_AUTHORITY`. FMVSS 126 on
     compact-ev (two-track, 80 km/h) needs it: on mu 1, 3 deg pass 22 / 44 runs, 6 deg 32, 8 deg 40,
     10 deg 44; on mu 0.6, 10 deg 40 / 44 and 20 deg 44 (the rear motors cannot help a car whose rear
     tyres are saturated, and the front has only the steer)."""
-    steer_authority_rate: float = np.deg2rad(100.0)
-    """Largest rate of that correction [rad/s]."""
+    steer_authority_rate: float | None = None
+    """Largest rate of that correction [rad/s]; None: the vehicle file's ``steer_authority_rate``, else
+    :data:`STEER_AUTHORITY_RATE`."""
     mu_max: float = 1.0
     """Friction the ECU assumes without evidence of less (and its upper bound) [-]."""
     mu_min: float = 0.1
@@ -107,7 +115,11 @@ class TwoDofDesign:
     ``g (t_f + t_r) / (4 h)`` (when the vehicle file gives the tracks and the CG height)."""
     slip_max: float = 0.1
     """Rear wheel slip [-] beyond which the yaw moment is withdrawn (slip control)."""
-    slip_cut_time: float = 0.05
+    slip_onset: float = 0.5
+    """Share of ``slip_max`` where slip control starts to withdraw the yaw moment [-]."""
+    slip_lead_time: float = 0.05
+    """[s] ahead that slip control predicts the slip from its growth (the time constant of the slip's lag)."""
+    slip_cut_time: float = 0.02
     """[s] for the yaw moment's authority to fall to 0 while a rear wheel slips."""
     slip_recover_time: float = 0.5
     """[s] for it to come back."""
@@ -132,14 +144,20 @@ class TwoDofDesign:
     tables), or None (exact model)."""
 
     def __post_init__(self):
+        for name, default in (("steer_authority", STEER_AUTHORITY), ("steer_authority_rate", STEER_AUTHORITY_RATE)):
+            if getattr(self, name) is None:
+                own = getattr(self.params, name, None)
+                object.__setattr__(self, name, float(default if own is None else own))
         if not (self.k_beta > 0 and self.k_gamma > 0):
             raise ValueError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
             raise ValueError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
-                     "slip_cut_time", "slip_recover_time"):
+                     "slip_cut_time", "slip_recover_time", "slip_lead_time"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if not 0 <= self.slip_onset < 1:
+            raise ValueError(f"controller setting 'slip_onset' must be in [0, 1), got {self.slip_onset!r}")
         if not 0 < self.mu_min <= self.mu_max:
             raise ValueError(f"controller friction bounds need 0 < mu_min <= mu_max, got {self.mu_min}, {self.mu_max}")
 

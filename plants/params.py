@@ -110,6 +110,11 @@ class VehicleParams:
 
     # Optional: steering and actuators.
     steering_ratio: float | None = _field("hand-wheel to road-wheel steering ratio [-]", 1.0, 100.0, default=None)
+    steer_authority: float | None = _field(
+        "largest steer correction the active front steering may add to the driver's road-wheel angle [rad]",
+        0.0, 1.0, default=None, strict_lo=False)
+    steer_authority_rate: float | None = _field("largest rate of that steer correction [rad/s]", 0.0, 100.0,
+                                                default=None)
     max_motor_torque: float | None = _field("peak torque of one rear in-wheel motor at the wheel [N m]",
                                             0.0, 1e5, default=None)
 

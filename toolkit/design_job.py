@@ -10,12 +10,15 @@ report DIR`` can redraw it without recomputing):
    nominal case; in the full run one cutting-plane round adds the tuned design's
    worst case when it lies outside the tuning set and tunes again;
 4. the sweep of the tuned design; the comparison (worst case, stability);
-5. the speed-grid analysis of both designs (observability, estimator poles, loop
+5. the limit manoeuvres (:mod:`toolkit.limits`: FMVSS 126 on mu 1.0 and 0.6, ISO 3888-1,
+   step steer into saturation) for no control, the paper design and the tuning's candidate; a
+   candidate worse than no control anywhere is stepped back towards the paper design (a
+   constraint, not a cost term), and an unchanged design says so;
+6. the speed-grid analysis of both designs (observability, estimator poles, loop
    poles in s and z, margins) and the pole maps' data;
-6. time responses of the standard manoeuvres (no control, paper, tuned);
-7. the FMVSS 126 sine-with-dwell series for both designs;
+7. time responses of the standard manoeuvres (no control, paper, tuned);
 8. ``design.json`` (the tuned design, self-describing), ``sweep.csv`` and
-   ``sweep.parquet``, the tables, ``report.md`` and ``report.html``.
+   ``sweep.parquet``, ``limits.csv``, the tables, ``report.md`` and ``report.html``.
 """
 
 from __future__ import annotations
@@ -214,27 +217,14 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
     return rows
 
 
-def fmvss_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], quick: bool) -> list[dict]:
-    from .fmvss126 import find_a, run_series
-    p = cfg.nominal
-    a_deg = find_a(p, cfg.plant, p.mu)
-    out = []
-    _, rows, verdict = run_series(p, "none", a_deg=a_deg, quick=quick, plant=cfg.plant)
-    out.append({"controller": "no control", "A_deg": a_deg, "runs": len(rows),
-                "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
-                "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
-    for pt in points:
-        _, rows, verdict = run_series(p, "two-dof", cfg.filter_design(pt), a_deg=a_deg, quick=quick,
-                                      design=pt.controller(cfg.base_design()), plant=cfg.plant)
-        out.append({"controller": f"2-DOF {pt.name}", "A_deg": a_deg, "runs": len(rows),
-                    "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
-                    "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
-    return out
-
-
 # ------------------------------------------------------------------ comparison
+BETTER_MARGIN = 0.05
+"""A design is better than another on a cost when it is lower by at least this share of it."""
+
+
 def compare(rows: list[dict]) -> dict:
-    """Worst case and stability of each design over the sweep, and the case-by-case relation."""
+    """Worst case and stability of each design over the sweep, and the case-by-case relation
+    ("better": lower by at least :data:`BETTER_MARGIN` of the other's cost)."""
     by = {}
     for r in rows:
         by.setdefault(r["design"], {})[r["case_id"]] = r
@@ -248,8 +238,11 @@ def compare(rows: list[dict]) -> dict:
         ids = sorted(by["paper"])
         out["tuned_stable_where_paper_stable"] = all(by["tuned"][i]["stable"] for i in ids if by["paper"][i]["stable"])
         out["paper_stable_tuned_unstable"] = [i for i in ids if by["paper"][i]["stable"] and not by["tuned"][i]["stable"]]
-        out["tuned_better_cases"] = sum(by["tuned"][i]["cost"] < by["paper"][i]["cost"] for i in ids)
-        out["tuned_strictly_better_worst_case"] = out["tuned"]["worst_cost"] < out["paper"]["worst_cost"]
+        out["tuned_better_cases"] = sum(by["tuned"][i]["cost"] < (1.0 - BETTER_MARGIN) * by["paper"][i]["cost"]
+                                        for i in ids)
+        out["better_margin"] = BETTER_MARGIN
+        out["tuned_strictly_better_worst_case"] = (out["tuned"]["worst_cost"]
+                                                   < (1.0 - BETTER_MARGIN) * out["paper"]["worst_cost"])
     return out
 
 
@@ -309,6 +302,93 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     return best[0], best[1], rounds
 
 
+def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, scheduler, workers, progress, log):
+    """The tuned design under the limit constraint (:mod:`toolkit.limits`).
+
+    The tuning's candidate, then points on the way back to the paper design in log space
+    (``phi_paper + s (phi_cand - phi_paper)``, ``s`` by bisection to 1/8), are driven through the
+    limit manoeuvres and swept; a point is accepted when it is no worse than no control on every
+    limit case (where the paper design is), passes FMVSS 126 and as many limit runs as the paper
+    design, loses no case of the sweep the paper design holds, and beats the paper design's worst
+    case by :data:`BETTER_MARGIN`. The tuned design is the candidate if accepted, else the accepted
+    point with the largest step. None: the paper design, unchanged (and the summary says so).
+
+    Returns ``(point, sweep rows, limit rows of no control / paper / tuned, selection log)``."""
+    from . import limits as lm
+    from .tuning import phi_of, point_of
+    a_cache: dict = {}
+    none = lm.run_limits(cfg, None, a_cache=a_cache)
+    paper_lim = lm.run_limits(cfg, sw.PAPER, a_cache=a_cache)
+    jp = lm.judge(paper_lim, none)
+    paper_worst = max(r["cost"] for r in rows_paper)
+    paper_stable = {r["case_id"] for r in rows_paper if r["stable"]}
+    phi0, phi1 = phi_of(sw.PAPER), phi_of(cand)
+    tried = []
+
+    def check(s):
+        point = point_of(phi0 + s * (phi1 - phi0), "tuned")
+        rows = rows_cand if s == 1.0 else sw.run_sweep(cfg, cases, [point], executor=executor, scheduler=scheduler,
+                                                       workers=workers, progress=progress)
+        lim = lm.run_limits(cfg, point, a_cache=a_cache)
+        j = lm.judge(lim, none)
+        worst = max(r["cost"] for r in rows)
+        lost = sorted(r["case_id"] for r in rows if r["case_id"] in paper_stable and not r["stable"])
+        why = []
+        if jp["admissible"] and not j["admissible"]:
+            why.append("worse than no control: " + "; ".join(j["worse_than_none"]))
+        if jp["fmvss126_pass"] and not j["fmvss126_pass"]:
+            why.append("fails FMVSS 126")
+        if j["limit_runs_passed"] < jp["limit_runs_passed"]:
+            why.append(f"{j['limit_runs_passed']} of {j['limit_runs']} limit runs held "
+                       f"(paper {jp['limit_runs_passed']})")
+        if lost:
+            why.append(f"loses stability in sweep case(s) {' '.join(map(str, lost))}")
+        if not worst < (1.0 - BETTER_MARGIN) * paper_worst:
+            why.append(f"worst cost {worst:.4g} not {BETTER_MARGIN:.0%} below the paper design's {paper_worst:.4g}")
+        tried.append({"step": s, "k_beta": point.k_beta, "k_gamma": point.k_gamma, "worst_cost": worst,
+                      "admissible": j["admissible"], "fmvss126_pass": j["fmvss126_pass"],
+                      "limit_runs_passed": j["limit_runs_passed"], "limit_runs": j["limit_runs"],
+                      "accepted": not why, "rejected_because": "; ".join(why)})
+        log(f"  limit check, step {s:g} towards the tuned point (K_beta {point.k_beta:.4g}, K_gamma "
+            f"{point.k_gamma:.4g}): " + ("accepted" if not why else "rejected, " + "; ".join(why)[:200]))
+        return (point, rows, none + paper_lim + lim) if not why else None
+
+    # the candidate itself, else bisection on the step (largest accepted step to 1/8)
+    found = check(1.0)
+    if found is None:
+        lo, hi = 0.0, 1.0
+        while hi - lo > 0.125 + 1e-12:
+            mid = 0.5 * (lo + hi)
+            got = check(mid)
+            if got is not None:
+                lo, found = mid, got
+            else:
+                hi = mid
+    if found is not None:
+        return (*found, tried)
+    point = dataclasses.replace(sw.PAPER, name="tuned")
+    return (point, [dict(r, design="tuned") for r in rows_paper],
+            none + paper_lim + [dict(r, design="tuned") for r in paper_lim], tried)
+
+
+def _limit_summary(limit_rows: list[dict]) -> dict:
+    """Per design: FMVSS 126 pass per surface, limit runs held, whether no worse than no control."""
+    from . import limits as lm
+    by: dict = {}
+    for r in limit_rows:
+        by.setdefault(r["design"], []).append(r)
+    none = by["no control"]
+    out = {}
+    for name, rs in by.items():
+        j = lm.judge(rs, none) if name != "no control" else lm.judge(none, none)
+        out[name] = {"fmvss126": {f"{r['plant']} mu {r['mu']:g}": f"{r['runs_passed']}/{r['runs']}" for r in rs
+                                  if r["kind"] == "fmvss126"},
+                     "fmvss126_pass": j["fmvss126_pass"], "limit_runs_held": j["limit_runs_passed"],
+                     "limit_runs": j["limit_runs"], "no_worse_than_no_control": j["admissible"],
+                     "worse_than_no_control": j["worse_than_none"]}
+    return out
+
+
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
                plant: str = "two-track") -> dict:
@@ -328,18 +408,28 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     tuned, rows_tuned, rounds = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
                                              progress, log)
     log(f"  tuning and sweep of the tuned design: {time.perf_counter() - t_start:.1f} s")
+    tuned, rows_tuned, limit_rows, selection = _limit_constrained(cfg, cases, rows_paper, tuned, rows_tuned, executor,
+                                                                  scheduler, workers, progress, log)
+    log(f"  limit manoeuvres: {time.perf_counter() - t_start:.1f} s")
     rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
     summary = compare(rows)
+    summary["tuned_is_paper"] = all(getattr(tuned, k) == getattr(paper, k) for k in sw.DesignPoint.TUNED)
+    summary["limits"] = _limit_summary(limit_rows)
     points = [paper, tuned]
     grid, poles = analysis_rows(cfg, points)
     responses = response_rows(cfg, points)
-    fmvss = fmvss_rows(cfg, points, quick)
-    log(f"  analysis, responses, FMVSS 126: {time.perf_counter() - t_start:.1f} s")
+    log(f"  analysis, responses: {time.perf_counter() - t_start:.1f} s")
     tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
                         "AD through compiled rollouts of the loop; stability constraint: decay rate of the "
                         "multi-rate loop with the estimator >= sigma_min on every tuning case",
               "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
-              "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds,
+              "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds, "limit_selection": selection,
+              "limit_constraint": "no worse than no control on every limit manoeuvre (FMVSS 126 criteria run by "
+                                  "run; peak sideslip within max(1.5 x no control, 3 deg), under 10 deg where no "
+                                  "control slides), as many limit runs held as the paper design, no sweep case "
+                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else a step "
+                                  "back towards the paper design (1, 1/2, 1/4, 1/8 of the way in log space), else "
+                                  "the paper design unchanged",
               "cost": "mean over the standard manoeuvres of ms(r - r_ref)/(1 deg/s)^2 + ms(beta - beta_ref)/"
                       "(0.5 deg)^2 + ms(beta_hat - beta)/(0.5 deg)^2 + 0.1 ms(N_z)/N_z,max^2"}
     cmd = command or "evstab design --vehicle " + shlex.quote(vehicle) + (" --quick" if quick else "")
@@ -350,7 +440,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     _write_csv(out / "analysis.csv", grid)
     _write_csv(out / "poles.csv", poles)
     _write_csv(out / "responses.csv", responses)
-    _write_csv(out / "fmvss126.csv", fmvss)
+    from .limits import public
+    _write_csv(out / "limits.csv", public(limit_rows))
     write_report(out)
     log(f"  report: {time.perf_counter() - t_start:.1f} s")
     return doc
@@ -362,10 +453,10 @@ def _write_json(path: Path, doc: dict) -> None:
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
     import csv
-    keys = list(rows[0]) if rows else []
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # every column, in order of first appearance
 
     def w(fh):
-        wr = csv.DictWriter(fh, fieldnames=keys, lineterminator="\n")
+        wr = csv.DictWriter(fh, fieldnames=keys, lineterminator="\n", restval="")
         wr.writeheader()
         for r in rows:
             wr.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})

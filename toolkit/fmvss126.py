@@ -178,14 +178,14 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
                 failed_all.add("rollover")
                 nan = float("nan")
                 rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": nan, "yaw_ratio_1_75": nan,
-                             "lateral_displacement_m": nan, "pass": False, "rollover_s": exc.t})
+                             "lateral_displacement_m": nan, "pass": False, "failed": "rollover", "rollover_s": exc.t})
                 continue
             sc = score_swd(t, hw[:len(t)], yaw_rate, ay)
             ok, failed = sc.passes(amp, a_deg)
             failed_all.update(failed)
             rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
                          "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
-                         "pass": ok, "rollover_s": float("nan")})
+                         "pass": ok, "failed": " ".join(failed), "rollover_s": float("nan")})
     verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
                "controller": controller,
                "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}

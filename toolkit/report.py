@@ -1,7 +1,7 @@
 """The design report, drawn only from what ``evstab design`` wrote (``evstab report DIR`` redraws it).
 
 Inputs in ``DIR``: ``design.json``, ``sweep.csv``, ``analysis.csv``, ``poles.csv``,
-``responses.csv``, ``fmvss126.csv``. Outputs: ``report.md`` with PNGs under
+``responses.csv``, ``limits.csv``. Outputs: ``report.md`` with PNGs under
 ``figures/`` and ``report.html`` with the same content and the figures embedded
 (self-contained). Both are rendered from one list of blocks, so they cannot
 disagree; every number is formatted by :func:`fmt`.
@@ -19,7 +19,7 @@ import numpy as np
 
 from .logio import atomic_write
 
-NEEDED = ("design.json", "sweep.csv", "analysis.csv", "poles.csv", "responses.csv", "fmvss126.csv")
+NEEDED = ("design.json", "sweep.csv", "analysis.csv", "poles.csv", "responses.csv", "limits.csv")
 
 
 def fmt(v) -> str:
@@ -106,7 +106,7 @@ def load_outputs(d: Path) -> dict:
                                 f"(run 'evstab design --out {d}' first)")
     return {"design": json.loads((d / "design.json").read_text()), "sweep": read_csv(d / "sweep.csv"),
             "analysis": read_csv(d / "analysis.csv"), "poles": read_csv(d / "poles.csv"),
-            "responses": read_csv(d / "responses.csv"), "fmvss": read_csv(d / "fmvss126.csv")}
+            "responses": read_csv(d / "responses.csv"), "limits": read_csv(d / "limits.csv")}
 
 
 def build(data: dict) -> Doc:
@@ -124,10 +124,43 @@ def build(data: dict) -> Doc:
     D.p(f"Command: {doc['provenance']['command']}")
 
     D.h(2, "Result")
+    lim = data["limits"]
+    lim_by = {}
+    for r in lim:
+        lim_by.setdefault(r["case"], {})[r["design"]] = r
+    labels = ["no control"] + designs
+    D.p("FMVSS 126 sine with dwell at 80 km/h (runs passed of every amplitude and both directions; A is the "
+        "hand-wheel angle for 0.3 g from the slowly increasing steer on the same surface), closed loop with the "
+        "ECU as exported, not told the friction:")
+    D.table([{"plant": c[next(iter(c))]["plant"], "mu": c["no control"]["mu"],
+              "A [deg hand-wheel]": c["no control"]["A_deg"], "runs": c["no control"]["runs"],
+              **{f"{n} passed": c[n]["runs_passed"] for n in labels},
+              **{f"{n} passes": c[n]["pass"] for n in labels}}
+             for c in lim_by.values() if c["no control"]["kind"] == "fmvss126"])
+    ls = s.get("limits", {})
+    sel = doc["tuning"].get("limit_selection", [])
+    if s.get("tuned_is_paper"):
+        D.p("The tuned design is the paper design, unchanged: no candidate of the tuning met the limit constraint "
+            "and the margin (" + "; ".join(f"step {fmt(t['step'])}: {t['rejected_because']}" for t in sel) + ").")
+    elif sel:
+        t = max((t for t in sel if t["accepted"]), key=lambda t: t["step"])
+        D.p(f"The tuned design is the tuning's candidate taken {fmt(t['step'])} of the way from the paper design "
+            "(log space). Limit constraint: " + doc["tuning"]["limit_constraint"] + ".")
+        D.table([{"step": t["step"], "K_beta [rad/s]": t["k_beta"], "K_gamma [rad/s]": t["k_gamma"],
+                  "worst cost": t["worst_cost"], "limit runs held": f"{t['limit_runs_passed']}/{t['limit_runs']}",
+                  "accepted": t["accepted"], "why not": t["rejected_because"][:160] or "-"} for t in sel])
+    for n in designs:
+        if n in ls and not ls[n]["no_worse_than_no_control"]:
+            D.p(f"{n} design worse than no control: " + "; ".join(ls[n]["worse_than_no_control"]))
+    D.p("Peak sideslip [deg] in the limit manoeuvres (ISO 3888-1 with the path-following driver; step steer asking "
+        "the nominal linear car for 1.5 mu g):")
+    D.table([{"manoeuvre": case, **{f"{n}": c[n]["peak_beta_deg"] for n in labels},
+              "tuned no worse than no control": c[designs[-1]]["no_worse_than_none"]}
+             for case, c in lim_by.items() if c["no control"]["kind"] != "fmvss126"])
     D.p(f"Worst case over the {fmt(s['cases'])} model-error cases of the sweep: paper design cost "
         f"{fmt(s['paper']['worst_cost'])} (case {fmt(s['paper']['worst_case_id'])}), tuned design cost "
         f"{fmt(s['tuned']['worst_cost'])} (case {fmt(s['tuned']['worst_case_id'])}); tuned strictly better on the "
-        f"worst case: {fmt(s['tuned_strictly_better_worst_case'])}.")
+        f"worst case (by at least {fmt(100 * s['better_margin'])} %): {fmt(s['tuned_strictly_better_worst_case'])}.")
     D.p(f"Stable cases (multi-rate linear loop with the estimator stable and every rollout bounded): paper "
         f"{fmt(s['paper']['stable_cases'])} of {fmt(s['cases'])}, tuned {fmt(s['tuned']['stable_cases'])} of "
         f"{fmt(s['cases'])}; tuned stable in every case the paper design is stable: "
@@ -265,9 +298,6 @@ def build(data: dict) -> Doc:
         ax.set_xlabel("t [s]")
     fig.tight_layout()
     D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design")
-
-    D.h(2, "FMVSS 126 sine with dwell")
-    D.table(data["fmvss"])
 
     D.h(2, "Provenance")
     pv = doc["provenance"]

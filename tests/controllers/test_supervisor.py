@@ -68,7 +68,7 @@ def test_yaw_guard_and_steer_authority():
     # stays within the authority and its rate
     d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
     dt = 1e-3
-    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]  # active, fully blended, no correction yet
+    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # active, fully blended, no correction yet
     # the car yaws too little to the left (error > 0): a right correction and a negative moment are dropped
     zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.0, -500.0, 1e4, dt)
     assert steer == 0.02 and nz == 0.0
@@ -87,8 +87,9 @@ def test_slip_control_keeps_the_rear_wheels_rolling():
     # mu 0.3, 60 km/h, sine with dwell at 5 A: the law saturates its yaw moment (4,413 N m, above
     # 2,000 N m); with the rear-grip limit switched off, only slip control stands between that demand
     # and the rear tyres. Without it (slip_max huge) a rear wheel spins up to a slip of 2.2; with it
-    # (bound 0.1) the peak is 0.19 (measured: the motors' 10,000 N m/s torque rate limits how fast
-    # the cut takes effect) and the sideslip smaller (2.3 against 6.1 deg)
+    # the worse rear wheel stays under the bound (measured 0.079 against slip_max 0.1: the cut starts
+    # at half the bound and looks 50 ms ahead, which the motors' 10,000 N m/s torque rate needs) and
+    # the sideslip is smaller (2.3 against 6.1 deg)
     p = load_vehicle("compact-ev")
     man = sine_with_dwell(60 / 3.6, np.radians(5 * 22.0) / p.steering_ratio)
     dist = Disturbances(friction=Friction(mu=0.3))
@@ -104,4 +105,5 @@ def test_slip_control_keeps_the_rear_wheels_rolling():
     free, demand, beta_free = run(slip_max=1e6)
     assert demand > 2000.0 and free > 1.0
     held, _, beta_held = run()
-    assert held < 0.25 and beta_held < beta_free
+    d = TwoDofDesign(p.as_nominal())
+    assert held < d.slip_max and beta_held < beta_free

@@ -97,7 +97,7 @@ def test_fmvss126_and_score_swd(tmp_path, capsys):
     out = tmp_path / "fm"
     assert main(["fmvss126", "--vehicle", "compact-ev", "--controller", "none", "--quick", "--out", str(out)]) == 0
     rows = (out / "fmvss126.csv").read_text().splitlines()
-    assert rows[0] == "amplitude_deg,direction,yaw_ratio_1_0,yaw_ratio_1_75,lateral_displacement_m,pass,rollover_s"
+    assert rows[0] == "amplitude_deg,direction,yaw_ratio_1_0,yaw_ratio_1_75,lateral_displacement_m,pass,failed,rollover_s"
     assert len(rows) == 5
     verdict = json.loads((out / "verdict.json").read_text())
     assert verdict["pass"] is False and "yaw_ratio_1_0" in verdict["failed_criteria"]  # it spins

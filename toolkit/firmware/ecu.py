@@ -121,6 +121,8 @@ _CONTROLLER_CAL = (
     ("rear_grip_share", "-", 0.0, 1.0, "share of the rear tyres' remaining grip the yaw moment may take"),
     ("rollover_share", "-", 0.0, 2.0, "reference lateral acceleration as a share of the static rollover threshold"),
     ("slip_max", "-", 0.0, 10.0, "rear wheel slip beyond which the yaw moment is cut"),
+    ("slip_onset", "-", 0.0, 0.99, "share of slip_max where slip control starts to withdraw the yaw moment"),
+    ("slip_lead_time", "s", 0.0, 1.0, "lag of the slip whose difference to the slip is slip control's prediction (how far ahead it looks)"),
     ("slip_cut_time", "s", 0.001, 10.0, "time the yaw-moment authority takes to fall to 0 while a rear wheel slips"),
     ("slip_recover_time", "s", 0.001, 100.0, "time it takes to come back once the slip is below slip_max"),
     ("ay_headroom", "m/s^2", 0.0, 20.0, "lateral acceleration above the measured one the yaw-rate reference may ask for"),
@@ -313,10 +315,10 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
         c, z_sup, g["speed"], z_law[3] - est["yaw_rate"], est["beta"], est["beta_std"], use, g["steer_cmd_driver"],
         law[0], law[1], nz_limit, g["dt"], o)
-    k_slip = sup_mod.slip_authority(c, z_sup[8], g["speed"], g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius,
-                                    g["dt"], o)
+    k_slip, slip_lag = sup_mod.slip_authority(c, z_sup[8], z_sup[9], g["speed"], g["wheel_speed_rl"],
+                                          g["wheel_speed_rr"], d.wheel_radius, g["dt"], o)
     nz_cmd = nz_cmd * k_slip
-    sup_n[4], sup_n[7], sup_n[8] = mu_est, demand, k_slip
+    sup_n[4], sup_n[7], sup_n[8], sup_n[9] = mu_est, demand, k_slip, slip_lag
     # the law's integrators run only while it has authority
     z_law_n = o.stack([z_law_n[0] * law_on, z_law_n[1] * law_on] + [z_law_n[i] for i in range(2, nl)])
     diff = o.fmin(o.fmax(nz_cmd * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)

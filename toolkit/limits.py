@@ -1,0 +1,170 @@
+"""Limit manoeuvres: what a stability controller is for, and the design job's constraint.
+
+The sweep (:mod:`toolkit.sweep`) judges a design on the standard manoeuvres across model
+errors, most of them in the tyres' linear range. A stability controller is worth what it does
+at the limit, so every design the design job considers is also driven, closed loop with the
+ECU as exported and not told the road, through
+
+* **FMVSS 126**: the sine-with-dwell series at 80 km/h (every amplitude, both directions,
+  ``A`` from the slowly increasing steer on the same surface) on mu 1.0 and 0.6;
+* **ISO 3888-1**: the severe lane change with the path-following driver at 80 and 100 km/h
+  on mu 1.0, 0.8 and 0.5 (peak sideslip);
+* **step steer into saturation**: 80 km/h, a hand-wheel step for 1.5 x the friction's lateral
+  acceleration on the nominal linear car, on mu 1.0 and 0.5 (peak sideslip).
+
+Each case is run without control too, and a design must do **no worse than no control** on
+every one of them (:func:`no_worse`): on FMVSS 126 every criterion the uncontrolled car meets in
+a run, the design meets in that run; in the sideslip cases the peak stays within
+``max(1.5 x the uncontrolled peak, 3 deg)`` where the uncontrolled car keeps its sideslip
+under :data:`SPIN_DEG`, and under ``SPIN_DEG`` where it does not. That is a constraint: a design that
+breaks it is not chosen, however small its cost (:func:`rank_key` orders designs by admissibility,
+then by limit results, then by the sweep's stable cases, then by the cost).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plants import G, is_multibody
+from plants.disturbances import Disturbances, Friction
+from plants.maneuvers import make_maneuver, step_steer, steer_for_lateral_acceleration
+
+SPIN_DEG = 10.0
+"""Peak sideslip [deg] beyond which a limit run has lost the car."""
+SIDESLIP_FACTOR = 1.5
+SIDESLIP_FLOOR_DEG = 3.0
+"""Where the uncontrolled car holds its sideslip, a design's peak may be up to
+``max(SIDESLIP_FACTOR x uncontrolled, SIDESLIP_FLOOR_DEG)`` (the stability-control issue's bound:
+a controller may trade a little sideslip for path, never a slide)."""
+STEP_SATURATION = 1.5
+"""The step steer asks the nominal linear car for this multiple of ``mu g``."""
+
+
+@dataclass(frozen=True)
+class LimitCase:
+    kind: str
+    """``fmvss126``, ``iso3888-1`` or ``step``."""
+    mu: float
+    speed_kmh: float = 80.0
+    plant: str | None = None
+    """Plant to run on (None: the design's)."""
+
+    @property
+    def label(self) -> str:
+        where = f" on {self.plant}" if self.plant else ""
+        return f"{self.kind} {self.speed_kmh:.0f} km/h mu {self.mu:g}{where}"
+
+
+def limit_cases(plant: str = "two-track") -> list[LimitCase]:
+    """The limit set for a design on ``plant``; on a multi-body plant FMVSS 126 runs on the
+    two-track of the nominal file as well (the model the design was made from)."""
+    cases = [LimitCase("fmvss126", mu) for mu in (1.0, 0.6)]
+    if is_multibody(plant):
+        cases += [LimitCase("fmvss126", mu, plant="two-track") for mu in (1.0, 0.6)]
+    cases += [LimitCase("iso3888-1", mu, kmh) for kmh in (80.0, 100.0) for mu in (1.0, 0.8, 0.5)]
+    cases += [LimitCase("step", mu) for mu in (1.0, 0.5)]
+    return cases
+
+
+def _fmvss(p, plant, mu, controller, estimator, design, a_cache: dict) -> dict:
+    from .fmvss126 import find_a, run_series
+    key = (plant, mu)
+    if key not in a_cache:
+        a_cache[key] = find_a(p, plant, mu)
+    _, rows, verdict = run_series(p, controller, estimator, mu=mu, plant=plant, a_deg=a_cache[key], design=design)
+    return {"A_deg": a_cache[key], "runs": len(rows), "runs_passed": sum(r["pass"] for r in rows),
+            "pass": verdict["pass"], "failed_criteria": " ".join(verdict["failed_criteria"]) or "-",
+            "_runs": [(r["amplitude_deg"], r["direction"], frozenset(r["failed"].split())) for r in rows]}
+
+
+def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> dict:
+    from .simulator import SimulationError, simulate
+    v = case.speed_kmh / 3.6
+    if case.kind == "iso3888-1":
+        man = make_maneuver("iso3888-1", p, v)
+    else:
+        man = step_steer(v, steer_for_lateral_acceleration(p, v, STEP_SATURATION * case.mu * G), start=0.5,
+                         duration=4.0)
+    try:
+        r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=case.mu)), seed=0,
+                     controller=controller, estimator=estimator, design=design)
+        beta = np.abs(r.truth["beta"])
+        peak = float(np.degrees(np.max(beta))) if np.all(np.isfinite(beta)) else float("inf")
+    except SimulationError:  # rolled over or diverged: the car is lost
+        peak = float("inf")
+    return {"peak_beta_deg": peak, "spun": not peak < SPIN_DEG}
+
+
+def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None) -> dict:
+    """One limit case for one design (``point``: a :class:`toolkit.sweep.DesignPoint`; None: no
+    control), closed loop on the compiled plant, the ECU not told the road."""
+    plant = case.plant or cfg.plant
+    p = cfg.nominal
+    if point is None:
+        controller, estimator, design = ("none" if case.kind == "fmvss126" else None), "dakf", None
+    else:
+        controller, estimator, design = "two-dof", cfg.filter_design(point), point.controller(cfg.base_design())
+    row = {"case": case.label, "kind": case.kind, "plant": plant, "mu": case.mu, "speed_kmh": case.speed_kmh,
+           "design": "no control" if point is None else point.name}
+    if case.kind == "fmvss126":
+        row.update(_fmvss(p, plant, case.mu, controller, estimator, design, {} if a_cache is None else a_cache))
+    else:
+        row.update(_sideslip_run(p, plant, case, controller, estimator, design))
+    return row
+
+
+def run_limits(cfg, point=None, cases: list[LimitCase] | None = None, a_cache: dict | None = None) -> list[dict]:
+    a_cache = {} if a_cache is None else a_cache
+    return [run_case(cfg, c, point, a_cache) for c in (cases or limit_cases(cfg.plant))]
+
+
+def no_worse(row: dict, none: dict) -> tuple[bool, str]:
+    """Whether a design's result on a limit case is no worse than no control's, and why not."""
+    if row["kind"] == "fmvss126":
+        lost: dict = {}
+        for (amp, _, f), (_, _, g) in zip(row["_runs"], none["_runs"]):
+            for c in f - g:
+                lost.setdefault(c, []).append(amp)
+        why = "; ".join(f"{c} failed in {len(a)} of {row['runs']} runs ({min(a):.0f}-{max(a):.0f} deg hand-wheel) "
+                        f"where no control meets it" for c, a in sorted(lost.items()))
+        return not lost, why
+    if none["spun"]:
+        ok = not row["spun"] or not np.isfinite(none["peak_beta_deg"]) or row["peak_beta_deg"] <= none["peak_beta_deg"]
+        return ok, "" if ok else f"peak sideslip {row['peak_beta_deg']:.1f} deg where no control reaches " \
+                                 f"{none['peak_beta_deg']:.1f} deg"
+    bound = max(SIDESLIP_FACTOR * none["peak_beta_deg"], SIDESLIP_FLOOR_DEG)
+    ok = row["peak_beta_deg"] <= bound
+    return ok, "" if ok else f"peak sideslip {row['peak_beta_deg']:.2f} deg > {bound:.2f} deg " \
+                             f"(no control {none['peak_beta_deg']:.2f} deg)"
+
+
+def judge(rows: list[dict], none_rows: list[dict]) -> dict:
+    """Summary of a design's limit results against no control's (same case order)."""
+    worse, passed, total = [], 0, 0
+    for r, n in zip(rows, none_rows):
+        ok, why = no_worse(r, n)
+        r["no_worse_than_none"] = ok
+        if not ok:
+            worse.append(f"{r['case']}: {why}")
+        if r["kind"] == "fmvss126":
+            passed += r["runs_passed"]
+            total += r["runs"]
+        else:
+            passed += int(not r["spun"])
+            total += 1
+    return {"admissible": not worse, "worse_than_none": worse, "limit_runs_passed": passed, "limit_runs": total,
+            "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
+
+
+def rank_key(limits: dict, stable_cases: int, worst_cost: float) -> tuple:
+    """Sort key, best first: admissible (no worse than no control on every limit case), FMVSS 126
+    passed, limit runs that hold the car, the sweep's stable cases, then the worst-case cost."""
+    return (not limits["admissible"], not limits["fmvss126_pass"], -limits["limit_runs_passed"], -stable_cases,
+            worst_cost)
+
+
+def public(rows: list[dict]) -> list[dict]:
+    """The rows without the per-run detail (for CSV)."""
+    return [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
