@@ -108,7 +108,7 @@ def design_dir(quick_design_dir):
     return quick_design_dir  # tests/conftest.py: one quick design run shared by the suite
 
 
-def test_design_outputs_and_the_tuned_design_beats_the_paper(design_dir):
+def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_unchanged(design_dir):
     from toolkit.design_job import read_csv
     doc = json.loads((design_dir / "design.json").read_text())
     rows = read_csv(design_dir / "sweep.csv")
@@ -121,7 +121,10 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper(design_dir):
     tuned_worst = max(r["cost"] for r in rows if r["design"] == "tuned")
     assert doc["sweep"]["paper"]["worst_cost"] == paper_worst
     assert doc["sweep"]["tuned"]["worst_cost"] == tuned_worst
-    assert tuned_worst < paper_worst
+    if doc["sweep"]["tuned_is_paper"]:  # no candidate met the limit constraint: said so, and unchanged
+        assert tuned_worst == paper_worst and doc["designs"]["tuned"] == doc["designs"]["paper"]
+    else:  # better by the stated margin
+        assert tuned_worst < (1.0 - doc["sweep"]["better_margin"]) * paper_worst
     assert all(by[(c.case_id, "tuned")]["stable"] for c in cases if by[(c.case_id, "paper")]["stable"])
     import pyarrow.parquet as pq
     assert pq.read_table(design_dir / "sweep.parquet").num_rows == len(rows)
