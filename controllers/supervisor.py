@@ -21,6 +21,10 @@ the model-following law of seed 003 acts only when the car needs it.
   ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out
   over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
   yaw moment, and the law's integrators are held at 0.
+* **Sideslip guard** (:func:`phase_plane_excess`): beyond the region ``|beta + phase_tau beta'| <=
+  phase_beta`` of the sideslip phase plane (``beta'`` from the accelerometer and gyro), the law is
+  active and a yaw moment and steer correction proportional to the excess act against the slide,
+  ahead of yaw-rate tracking.
 * **Slip control** (:func:`slip_authority`): the yaw moment is withdrawn while a rear wheel slips
   beyond ``slip_max``, so it never spins or locks a rear wheel.
 * **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
@@ -104,14 +108,29 @@ def slip_authority(d, k, slip_lag, speed, omega_rl, omega_rr, wheel_radius, dt, 
     return o.fmin(o.fmax(k + step, 0.0), 1.0), lag_next
 
 
+def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):
+    """How far [rad] the car is outside the sideslip phase-plane region
+    ``|beta + phase_tau beta'| <= phase_beta`` (signed, 0 inside).
+
+    ``beta'`` is the kinematic sideslip rate ``a_y / v - r`` from the accelerometer and gyro, which
+    holds at the limit where the tyre model does not; the estimated sideslip counts only while the
+    estimate is trustworthy (``trusted``: ``beta_std < beta_std_max``), otherwise the region is a
+    bound on the sideslip rate alone. Beyond it the car is sliding away (a growing slide reaches the
+    boundary before the sideslip itself is large), and the controller puts sideslip first."""
+    s = trusted * beta + d.phase_tau * beta_rate
+    return s - o.fmin(o.fmax(s, -d.phase_beta), d.phase_beta)
+
+
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,
-              o=NUMPY):
+              o=NUMPY, beta_rate=None):
     """``(z_next, steer_cmd, nz_cmd, law_on)``: the commands after supervision, and whether the law's
-    integrators may run (0: hold them at 0)."""
+    integrators may run (0: hold them at 0). ``beta_rate``: the kinematic sideslip rate [rad/s] for
+    the phase-plane guard (None: no guard)."""
     active, hold, blend, corr = z[0], z[1], z[2], z[3]
     thr_r = (d.yaw_rate_deadband + d.yaw_rate_deadband_per_speed * o.fabs(speed)) * (1.0 - d.deadband_shrink * use)
     trusted = beta_std < d.beta_std_max
-    on = (o.fabs(yaw_rate_error) > thr_r) + trusted * (o.fabs(beta) > d.beta_threshold)
+    excess = 0.0 * speed if beta_rate is None else phase_plane_excess(d, beta, beta_rate, trusted, o)
+    on = (o.fabs(yaw_rate_error) > thr_r) + trusted * (o.fabs(beta) > d.beta_threshold) + (o.fabs(excess) > 0.0)
     quiet = (o.fabs(yaw_rate_error) < d.deactivate_ratio * thr_r) * (
         1.0 - trusted * (o.fabs(beta) >= d.deactivate_ratio * d.beta_threshold))
     fast = speed >= d.min_speed
@@ -132,6 +151,11 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     want = steer_law - steer_driver
     want = o.if_else(beyond * (want * yaw_rate_error < 0.0) > 0.5, 0.0, want)
     nz_law = o.if_else(beyond * (nz_law * yaw_rate_error < 0.0) > 0.5, 0.0, nz_law)
+    # sideslip first beyond the phase-plane region: a yaw moment and a steer correction that turn the
+    # car against the slide (beta' = a_y / v - r: more yaw rate, less sideslip rate), added after the
+    # yaw guard so that it cannot drop them
+    want = want + d.phase_gain_steer * excess
+    nz_law = o.fmin(o.fmax(nz_law + d.phase_gain_nz * d.params.yaw_inertia * excess, -nz_limit), nz_limit)
     # the steer correction within the superposition's authority and rate
     limited = o.fmin(o.fmax(want, -d.steer_authority), d.steer_authority)
     rate = d.steer_authority_rate * dt

@@ -127,6 +127,16 @@ class TwoDofDesign:
     """[m/s^2] above the measured lateral acceleration (and ``ay_headroom_share`` of it) the yaw-rate
     reference may ask for: a reference beyond ``|a_y| / v`` asks for a growing slide."""
     ay_headroom_share: float = 0.1
+    phase_beta: float = np.deg2rad(4.0)
+    """Half-width [rad] of the sideslip phase-plane region ``|beta + phase_tau beta'| <= phase_beta``
+    (:func:`controllers.supervisor.phase_plane_excess`); a value beyond any sideslip (1e9) switches the
+    guard off."""
+    phase_tau: float = 0.3
+    """Weight [s] of the sideslip rate in the phase-plane region (how far ahead it looks)."""
+    phase_gain_nz: float = 50.0
+    """Yaw moment per unit of phase-plane excess, as a yaw acceleration [1/s^2] (times I_z)."""
+    phase_gain_steer: float = 1.0
+    """Steer correction per unit of phase-plane excess [rad/rad]."""
     guard_share: float = 0.0
     """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
     rear_grip_share: float = 0.5

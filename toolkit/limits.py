@@ -97,17 +97,26 @@ def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> d
     return {"peak_beta_deg": peak, "spun": not peak < SPIN_DEG}
 
 
-def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None) -> dict:
-    """One limit case for one design (``point``: a :class:`toolkit.sweep.DesignPoint`; None: no
-    control), closed loop on the compiled plant, the ECU not told the road."""
+def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None, name: str | None = None) -> dict:
+    """One limit case for one design, closed loop on the compiled plant, the ECU not told the road.
+
+    ``point``: a :class:`toolkit.sweep.DesignPoint` (its gains and noise on ``cfg``'s design), an
+    :class:`toolkit.firmware.ecu.EcuDesign` (a design folder's ECU as exported) or a
+    :class:`controllers.two_dof.TwoDofDesign` (with the ``dakf`` filter); None: no control."""
+    from controllers.two_dof import TwoDofDesign
+    from .firmware.ecu import EcuDesign
     plant = case.plant or cfg.plant
     p = cfg.nominal
-    if point is None:
+    if isinstance(point, EcuDesign):
+        controller, estimator, design = "two-dof", point.filter.method, point
+    elif isinstance(point, TwoDofDesign):
+        controller, estimator, design = "two-dof", "dakf", point
+    elif point is None:
         controller, estimator, design = ("none" if case.kind == "fmvss126" else None), "dakf", None
     else:
         controller, estimator, design = "two-dof", cfg.filter_design(point), point.controller(cfg.base_design())
     row = {"case": case.label, "kind": case.kind, "plant": plant, "mu": case.mu, "speed_kmh": case.speed_kmh,
-           "design": "no control" if point is None else point.name}
+           "design": name or ("no control" if point is None else point.name)}
     if case.kind == "fmvss126":
         row.update(_fmvss(p, plant, case.mu, controller, estimator, design, {} if a_cache is None else a_cache))
     else:
@@ -115,9 +124,11 @@ def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None) -> d
     return row
 
 
-def run_limits(cfg, point=None, cases: list[LimitCase] | None = None, a_cache: dict | None = None) -> list[dict]:
+def run_limits(cfg, point=None, cases: list[LimitCase] | None = None, a_cache: dict | None = None,
+               name: str | None = None) -> list[dict]:
+    """:func:`run_case` for every case (default :func:`limit_cases` of ``cfg.plant``)."""
     a_cache = {} if a_cache is None else a_cache
-    return [run_case(cfg, c, point, a_cache) for c in (cases or limit_cases(cfg.plant))]
+    return [run_case(cfg, c, point, a_cache, name) for c in (cases or limit_cases(cfg.plant))]
 
 
 def no_worse(row: dict, none: dict) -> tuple[bool, str]:

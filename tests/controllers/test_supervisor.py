@@ -107,3 +107,28 @@ def test_slip_control_keeps_the_rear_wheels_rolling():
     held, _, beta_held = run()
     d = TwoDofDesign(p.as_nominal())
     assert held < d.slip_max and beta_held < beta_free
+
+
+def test_phase_plane_guard_acts_against_the_slide_and_only_outside_its_region():
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    b, tau = d.phase_beta, d.phase_tau
+    # inside the region |beta + tau beta'| <= b: exactly 0; outside: the distance to the boundary
+    assert sup.phase_plane_excess(d, 0.5 * b, 0.0, 1.0) == 0.0
+    assert sup.phase_plane_excess(d, b, -b / tau, 1.0) == 0.0
+    assert sup.phase_plane_excess(d, -b, -0.1, 1.0) == pytest.approx(-tau * 0.1, rel=1e-12)
+    # an untrusted sideslip estimate does not count: only the kinematic rate does
+    assert sup.phase_plane_excess(d, -10 * b, 0.0, 0.0) == 0.0
+    # a car over-rotating to the left (r > a_y / v: beta' = -0.4 rad/s) with an untrusted sideslip
+    # estimate and no yaw-rate error: the law is switched on, and the guard's yaw moment and steer
+    # turn the car right (negative: b21, b22 > 0), in proportion to the excess
+    dt = 1e-3
+    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    excess = tau * -0.4 + b
+    zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.0, 0.0, 1.0, 0.3, 0.02, 0.02, 0.0, 1e5, dt, beta_rate=-0.4)
+    assert zn[0] == 1.0 and excess < 0
+    assert nz == pytest.approx(d.phase_gain_nz * d.params.yaw_inertia * excess, rel=1e-12)
+    assert steer == pytest.approx(0.02 - d.steer_authority_rate * dt, rel=1e-12)  # rate-limited, to the right
+    # inactive car, inside the region: not switched on by the guard
+    z0 = sup.initial_state(d)
+    zn, steer, nz, _ = sup.supervise(d, z0, 20.0, 0.0, 0.0, 1.0, 0.0, 0.02, 0.02, 0.0, 1e5, dt, beta_rate=0.05)
+    assert zn[0] == 0.0 and steer == 0.02 and nz == 0.0

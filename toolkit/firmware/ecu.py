@@ -53,11 +53,11 @@ INPUTS = (
     ("gps_sats", "-", "int", "satellites used in the fix (fewer than 4: the fix is not used)"),
     ("steer_cmd_driver", "rad", "real", "driver's road-wheel angle command (hand-wheel angle / steering ratio)"),
     ("yaw_moment_applied", "N m", "real", "yaw moment the rear motors made over the last period, + turns left"),
-    ("steer_limited", "-", "int", "1 when the steer actuator was at a limit in the last period"),
-    ("yaw_moment_limited", "-", "int", "1 when the motors were at a torque limit in the last period"),
-    ("mu", "-", "real", "friction from a road sensor, an upper bound on the ECU's estimate (none: the design's mu_max)"),
-    ("wheel_speed_rl", "rad/s", "real", "rear-left wheel speed (speed / wheel radius without a sensor: no slip control)"),
-    ("wheel_speed_rr", "rad/s", "real", "rear-right wheel speed (speed / wheel radius without a sensor: no slip control)"),
+    ("steer_limited", "-", "int", "optional: 1 when the steer actuator was at a limit in the last period (0 without actuator feedback: the ECU's own limit flags feed the anti-windup)"),
+    ("yaw_moment_limited", "-", "int", "optional: 1 when the motors were at a torque limit in the last period (0 without actuator feedback: as above)"),
+    ("mu", "-", "real", "optional: friction from a road sensor, an upper bound on the ECU's own estimate (without a sensor: the design's mu_max, or any larger value)"),
+    ("wheel_speed_rl", "rad/s", "real", "rear-left wheel speed (without a sensor: speed / wheel radius, which switches slip control off)"),
+    ("wheel_speed_rr", "rad/s", "real", "rear-right wheel speed (without a sensor: as above)"),
 )
 OUTPUTS = (
     ("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
@@ -127,6 +127,10 @@ _CONTROLLER_CAL = (
     ("slip_recover_time", "s", 0.001, 100.0, "time it takes to come back once the slip is below slip_max"),
     ("ay_headroom", "m/s^2", 0.0, 20.0, "lateral acceleration above the measured one the yaw-rate reference may ask for"),
     ("ay_headroom_share", "-", 0.0, 10.0, "... plus this share of the measured one"),
+    ("phase_beta", "rad", 0.0, 1e9, "half-width of the sideslip phase-plane region |beta + phase_tau beta'|"),
+    ("phase_tau", "s", 0.0, 10.0, "weight of the sideslip rate in the phase-plane region"),
+    ("phase_gain_nz", "1/s^2", 0.0, 1e4, "yaw moment per unit phase-plane excess, as yaw acceleration (times I_z)"),
+    ("phase_gain_steer", "-", 0.0, 100.0, "steer correction per unit phase-plane excess"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
     ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
@@ -312,9 +316,11 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
                    steer_flag, nz_flag])
     nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
     z_law_n, law = control_law(c, z_law, sig, o, nz_limit)
+    # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
+    beta_rate = g["ay"] / vm - est["yaw_rate"]
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
         c, z_sup, g["speed"], z_law[3] - est["yaw_rate"], est["beta"], est["beta_std"], use, g["steer_cmd_driver"],
-        law[0], law[1], nz_limit, g["dt"], o)
+        law[0], law[1], nz_limit, g["dt"], o, beta_rate=beta_rate)
     k_slip, slip_lag = sup_mod.slip_authority(c, z_sup[8], z_sup[9], g["speed"], g["wheel_speed_rl"],
                                           g["wheel_speed_rr"], d.wheel_radius, g["dt"], o)
     nz_cmd = nz_cmd * k_slip
