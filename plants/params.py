@@ -30,6 +30,13 @@ from .errors import ParameterError
 G = 9.80665
 """Standard gravity [m/s^2]."""
 
+WHEELBASE_RANGE = (1.0, 6.0)
+"""Wheelbase [m] of a road vehicle (a micro car to a long van)."""
+WHEEL_RADIUS_RANGE = (0.15, 0.6)
+"""Rolling radius [m] of a road vehicle's wheel."""
+STEERING_RATIO_RANGE = (5.0, 30.0)
+"""Hand-wheel to road-wheel ratio of a road vehicle."""
+
 _REQUIRED = (
     "mass",
     "yaw_inertia",
@@ -141,11 +148,43 @@ class VehicleParams:
                 raise ParameterError(
                     f"{self.name}: field '{f.name}' ({f.metadata['doc']}) = {value!r} is outside "
                     f"the allowed range {bracket}{lo}, {hi}]")
-        if self.lf + self.lr <= 0.0:
-            raise ParameterError(f"{self.name}: lf + lr must be > 0, got {self.lf} + {self.lr}")
+        self._check_physics()
+
+    def _check_physics(self) -> None:
+        """Relations between fields that physics (or any road car) fixes; each message names the
+        fields, their values and the bound."""
+        n = self.name
+        L = self.lf + self.lr
+        if not WHEELBASE_RANGE[0] <= L <= WHEELBASE_RANGE[1]:
+            raise ParameterError(
+                f"{n}: wheelbase lf + lr = {self.lf!r} + {self.lr!r} = {L:.4g} m is outside "
+                f"[{WHEELBASE_RANGE[0]}, {WHEELBASE_RANGE[1]}] m (lf and lr are in metres)")
         if self.sprung_mass is not None and self.sprung_mass > self.mass:
             raise ParameterError(
-                f"{self.name}: field 'sprung_mass' = {self.sprung_mass} exceeds 'mass' = {self.mass}")
+                f"{n}: field 'sprung_mass' = {self.sprung_mass!r} kg exceeds 'mass' = {self.mass!r} kg "
+                "(the sprung mass is part of the total)")
+        if self.roll_inertia is not None and self.sprung_mass is not None and self.roll_arm is not None:
+            least = self.sprung_mass * self.roll_arm ** 2
+            if self.roll_inertia < least:
+                raise ParameterError(
+                    f"{n}: field 'roll_inertia' = {self.roll_inertia!r} kg m^2 is below sprung_mass * roll_arm^2 "
+                    f"= {self.sprung_mass!r} * {self.roll_arm!r}^2 = {least:.4g} kg m^2: the inertia about the "
+                    "roll axis is the sprung mass's own plus m_s h^2 (parallel-axis theorem); a value below "
+                    "that is the inertia about the sprung mass's CG")
+        if self.width is not None:
+            for k in ("track_front", "track_rear"):
+                t = getattr(self, k)
+                if t is not None and t > self.width:
+                    raise ParameterError(
+                        f"{n}: field '{k}' = {t!r} m exceeds the overall 'width' = {self.width!r} m")
+        if self.wheel_radius is not None and not WHEEL_RADIUS_RANGE[0] <= self.wheel_radius <= WHEEL_RADIUS_RANGE[1]:
+            raise ParameterError(
+                f"{n}: field 'wheel_radius' = {self.wheel_radius!r} m is outside "
+                f"[{WHEEL_RADIUS_RANGE[0]}, {WHEEL_RADIUS_RANGE[1]}] m (a road car's rolling radius, in metres)")
+        if self.steering_ratio is not None and not STEERING_RATIO_RANGE[0] <= self.steering_ratio <= STEERING_RATIO_RANGE[1]:
+            raise ParameterError(
+                f"{n}: field 'steering_ratio' = {self.steering_ratio!r} is outside "
+                f"[{STEERING_RATIO_RANGE[0]}, {STEERING_RATIO_RANGE[1]}] (hand-wheel angle / road-wheel angle)")
 
     # ----------------------------------------------------------------- derived
     @property

@@ -46,6 +46,17 @@ def _number(kind: str):
 
 _positive, _nonneg, _finite = _number("positive"), _number("nonneg"), _number("finite")
 
+SPEED_MAX_KMH = 300.0
+"""Largest speed [km/h] a command accepts (beyond it the number is a unit mistake, not a car)."""
+
+
+def _speed_kmh(text: str) -> float:
+    """argparse type: a speed in km/h, 0-300."""
+    v = _nonneg(text)
+    if v > SPEED_MAX_KMH:
+        raise argparse.ArgumentTypeError(f"{v:g} km/h is beyond {SPEED_MAX_KMH:g} km/h: the speed is in km/h")
+    return v
+
 
 def _plant(text: str) -> str:
     """argparse type: a plant name (``commonroad-mb:N[:STEER_RATE]`` included), checked by get_plant."""
@@ -108,6 +119,17 @@ def _loop_choice(args):
     return args.controller or "two-dof", ecu.filter, ecu
 
 
+def _check_log(log, args) -> None:
+    """Unit mistakes found by consistency (:func:`toolkit.logio.check_units`), and a log without a
+    usable GPS fix; ``--trust-units`` skips the unit checks."""
+    from .logio import check_units
+    if not np.any(np.isfinite(log["gps_course"])):
+        raise EvstabError(f"{log.source}: no GPS fix (column 'gps_course' is empty on every row): nothing to "
+                          "correct the gyro with; for a log made by 'evstab convert --nmea', check --time-offset")
+    if not getattr(args, "trust_units", False):
+        check_units(log)
+
+
 def cmd_estimate(args) -> int:
     from .estimation import design_filter, run_estimator
     from .estimation.kalman import OUTPUTS
@@ -125,6 +147,7 @@ def cmd_estimate(args) -> int:
     needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault",
               "roll_rate", "gps_roll")
     log = read_log(args.log, needed, args.channel_map).without_truth()
+    _check_log(log, args)
     from .estimation.spec import METHOD_COLUMNS
     lacks = [c for c in METHOD_COLUMNS.get(args.method, ()) if not np.any(np.isfinite(log.columns.get(c, [np.nan])))]
     if lacks:
@@ -167,6 +190,7 @@ def _replay(args):
 
     d, _ = ecu_from_design(args.design)
     log = read_log(args.log, LOG_COLUMNS, args.channel_map).without_truth()
+    _check_log(log, args)
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
     prog = ecu_program(d)
@@ -233,6 +257,14 @@ def cmd_convert(args) -> int:
         imu = read_log_csv(args.imu, required=tuple(c for c in REQUIRED if c != "gps_course"))
         cols = {k: v for k, v in imu.columns.items() if not k.startswith("gps_")}
         merged, counts = merge_onto_imu(cols, gps, args.time_offset)
+        if counts["placed"] == 0 and len(gps):
+            t_imu = cols["t"]
+            offset = float(gps.t[0] - t_imu[0])
+            raise EvstabError(
+                f"{args.nmea} + {args.imu}: none of the {len(gps)} GPS epochs falls inside the IMU log "
+                f"(GPS time {gps.t[0]:.3f}-{gps.t[-1]:.3f} s, IMU t {t_imu[0]:.3f}-{t_imu[-1]:.3f} s with "
+                f"--time-offset {args.time_offset:g}); --time-offset {offset:.3f} puts the first fix on the IMU "
+                "log's first row (IMU t = GPS time - offset)")
         what = (f"{args.nmea} + {args.imu}: {len(gps)} GPS epochs, {counts['placed']} placed on {len(cols['t'])} IMU "
                 f"rows, {counts['before']} before and {counts['after']} after the IMU log dropped"
                 + (f", {counts['time_backwards']} with a time tag going backwards dropped (flagged in column "
@@ -317,18 +349,32 @@ def cmd_score_swd(args) -> int:
     return 0
 
 
+class _Help(argparse.HelpFormatter):
+    """Help that states each option's default (where it has one that is not "none given")."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        if (d is not None and d is not False and d is not argparse.SUPPRESS and "default" not in text
+                and action.option_strings and not isinstance(d, list)):
+            text += f" (default: {d})"
+        return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .estimation.spec import LOOP_METHODS
 
     ap = argparse.ArgumentParser(prog="evstab", description="Stability-control design for in-wheel-motor EVs.")
     sub = ap.add_subparsers(dest="command", required=True)
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add(*a, formatter_class=_Help, **k)
     sp = sub.add_parser("vehicles", help="list the bundled vehicle parameter sets")
     sp.set_defaults(func=cmd_vehicles)
     sp = sub.add_parser("simulate", help="simulate a manoeuvre and write a drive-log CSV")
     sp.add_argument("--vehicle", required=True, help=f"bundled name ({', '.join(bundled_vehicles())}) or TOML path")
     sp.add_argument("--plant", type=_plant, default="two-track", help=_PLANT_HELP + "; default two-track")
-    sp.add_argument("--maneuver", choices=MANEUVERS, required=True)
-    sp.add_argument("--speed", type=_nonneg, required=True, help="speed [km/h]")
+    sp.add_argument("--maneuver", choices=MANEUVERS, required=True, help="manoeuvre")
+    sp.add_argument("--speed", type=_speed_kmh, required=True, help="speed [km/h], 0-300")
     sp.add_argument("--amplitude", type=_finite, help="front road-wheel angle amplitude [deg]")
     sp.add_argument("--mu", type=_positive, help="tire-road friction (default: the vehicle's)")
     sp.add_argument("--wind", action="store_true", help="lateral wind gust 4-8 s (seed 003)")
@@ -341,7 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the ECU's filter in the loop (default dakf; needs --controller)")
     sp.add_argument("--design", help="an 'evstab design' folder: its ECU (filter, controller, calibration, "
                                      "schedule, as exported) closes the loop; --controller defaults to two-dof")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="seed of every noise source")
     sp.add_argument("--dt", type=_positive, default=1e-3, help="time step [s]")
     sp.add_argument("--out", required=True, help="drive-log CSV to write")
     sp.add_argument("--plot", help="PNG figure to write")
@@ -352,9 +398,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--vehicle", help="bundled name or TOML path (its nominal parameters are used)")
     sp.add_argument("--design", help="an 'evstab design' folder: run its estimator exactly as exported "
                                      "(instead of --vehicle/--method)")
-    sp.add_argument("--method", choices=METHODS, default="dakf")
+    sp.add_argument("--method", choices=METHODS, default="dakf", help="estimator")
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
     sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
+    sp.add_argument("--trust-units", action="store_true",
+                    help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.add_argument("--no-monitor", action="store_true",
                     help="feed the log to the filter as it is: no sensor-fault screening, no fault_* columns")
     sp.add_argument("--out", required=True, help="estimate CSV to write")
@@ -367,6 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="CSV of the ECU outputs to write")
     sp.add_argument("--inputs-out", help="also write the ECU input rows (for the exported evstab_replay harness)")
     sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
+    sp.add_argument("--trust-units", action="store_true",
+                    help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.set_defaults(func=cmd_replay)
     sp = sub.add_parser("convert", help="an MDF4 log (with a channel map), or an NMEA 0183 GNSS log and an IMU "
                                         "CSV, to a drive-log CSV")
@@ -380,7 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_convert)
     sp = sub.add_parser("export", help="export a design as firmware: C99, JSON gain set, A2L, CDFX")
     sp.add_argument("design_dir", help="an 'evstab design' folder")
-    sp.add_argument("--format", choices=["c", "json", "a2l", "cdfx", "all"], default="all")
+    sp.add_argument("--format", choices=["c", "json", "a2l", "cdfx", "all"], default="all", help="what to write")
     sp.add_argument("--precision", choices=["float32", "float64"], default="float64",
                     help="floating-point type of the C code and the A2L record layouts")
     sp.add_argument("--out", required=True, help="folder to write into")
@@ -388,12 +438,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("fmvss126", help="FMVSS 126: slowly increasing steer for A, then the sine-with-dwell series")
     sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (the controller's nominal model)")
     sp.add_argument("--plant", type=_plant, default="two-track", help=_PLANT_HELP + "; default two-track")
-    sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof")
+    sp.add_argument("--controller", choices=["none", "yaw-pi", "two-dof"], default="two-dof",
+                    help="the stability loop's controller")
     sp.add_argument("--estimator", choices=LOOP_METHODS, help="the ECU's filter (default dakf)")
     sp.add_argument("--design", help="an 'evstab design' folder: its ECU as exported (instead of --estimator "
                                      "and the design knobs below)")
     sp.add_argument("--mu", type=_positive, help="friction (default: the vehicle's)")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="seed of every noise source")
     sp.add_argument("--quick", action="store_true", help="only the first two amplitudes at or above 5 A")
     sp.add_argument("--k-beta", type=_positive, default=5.0, help="model-following pole for sideslip [rad/s]")
     sp.add_argument("--k-gamma", type=_positive, default=5.0, help="model-following pole for yaw rate [rad/s]")
@@ -420,6 +471,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=int, help="worker processes (default: the CPU count)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.set_defaults(func=cmd_design)
+    sp = sub.add_parser("cache", help="where the compiled code is cached ($EVSTAB_CACHE, default ~/.cache/evstab), "
+                                      "how much, and --clear to empty it")
+    sp.add_argument("--clear", action="store_true", help="delete the cached generated C and libraries")
+    sp.set_defaults(func=cmd_cache)
     sp = sub.add_parser("report", help="redraw report.md and report.html from a design folder (no recomputing)")
     sp.add_argument("dir", help="folder written by 'evstab design'")
     sp.set_defaults(func=cmd_report)
@@ -457,6 +512,20 @@ def cmd_design(args) -> int:
           f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "
           f"{s['tuned']['worst_cost']:.4g}; stable cases: paper {s['paper']['stable_cases']}, tuned "
           f"{s['tuned']['stable_cases']} -> {args.out}/report.html")
+    return 0
+
+
+def cmd_cache(args) -> int:
+    from .compiled import _cache_dir, cache_files, clear_cache
+    d = _cache_dir()
+    if args.clear:
+        n, size = clear_cache()
+        print(f"removed {n} files ({size / 2**20:.1f} MiB) from {d}")
+        return 0
+    files = cache_files()
+    size = sum(p.stat().st_size for p in files)
+    print(f"{d}: {len(files)} files, {size / 2**20:.1f} MiB (set EVSTAB_CACHE to move it; "
+          "'evstab cache --clear' empties it)")
     return 0
 
 

@@ -139,6 +139,26 @@ def _cache_dir() -> Path:
     return Path(root)
 
 
+def cache_files() -> list[Path]:
+    """The files evstab wrote into the compiled cache (generated C and shared libraries)."""
+    d = _cache_dir()
+    return sorted(p for p in d.glob("evstab_*") if p.is_file()) if d.is_dir() else []
+
+
+def clear_cache() -> tuple[int, int]:
+    """Delete the compiled cache's files; returns (files, bytes) removed. Libraries a running
+    process has loaded stay mapped in it; the next run compiles again."""
+    n = size = 0
+    for p in cache_files():
+        try:
+            s = p.stat().st_size
+            p.unlink()
+        except FileNotFoundError:  # another process removed it first
+            continue
+        n, size = n + 1, size + s
+    return n, size
+
+
 def compiler() -> str | None:
     """The C compiler used for generated code (``$CC`` or gcc/cc on PATH), or None."""
     for cand in (os.environ.get("CC"), "gcc", "cc"):

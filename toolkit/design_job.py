@@ -137,10 +137,14 @@ def load_design(path) -> LoadedDesign:
     from plants.params import VehicleParams as VP
     path = Path(path)
     f = path / "design.json" if path.is_dir() else path
+    if not f.is_file():
+        raise ValueError(f"{f}: no such file; expected an 'evstab design' folder or its design.json")
     try:
         doc = json.loads(f.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise ValueError(f"{f}: cannot read a design ({e})") from None
+    except OSError as e:
+        raise ValueError(f"{f}: cannot read it ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{f}: not JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
     if doc.get("format") != FORMAT:
         raise ValueError(f"{f}: field 'format' is {doc.get('format')!r}, expected {FORMAT!r}")
     try:
@@ -273,7 +277,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
         caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
                 for i in ids]
         res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps,
-                   workers=workers if executor == "local" else None)
+                   workers=workers if executor == "local" else None, progress=progress)
         cand = dataclasses.replace(res.point, name="tuned")
         rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
                             progress=progress)
@@ -395,6 +399,13 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     from .report import write_report
     from .tuning import SIGMA_MIN, BOUNDS
     t_start = time.perf_counter()
+    clock = {"last": t_start}
+
+    def phase(text: str) -> None:
+        """Log a finished phase with its own duration and the time since the start."""
+        now = time.perf_counter()
+        log(f"  {text}: {now - clock['last']:.1f} s (total {now - t_start:.1f} s)")
+        clock["last"] = now
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     params = load_vehicle(vehicle)
@@ -404,13 +415,13 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     log(f"evstab design: {params.name} on {plant}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")
     rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
                               progress=progress)
-    log(f"  sweep of the paper design: {time.perf_counter() - t_start:.1f} s")
+    phase("sweep of the paper design")
     tuned, rows_tuned, rounds = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
                                              progress, log)
-    log(f"  tuning and sweep of the tuned design: {time.perf_counter() - t_start:.1f} s")
+    phase("tuning and sweep of the tuned design")
     tuned, rows_tuned, limit_rows, selection = _limit_constrained(cfg, cases, rows_paper, tuned, rows_tuned, executor,
                                                                   scheduler, workers, progress, log)
-    log(f"  limit manoeuvres: {time.perf_counter() - t_start:.1f} s")
+    phase("limit manoeuvres and selection")
     rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
     summary = compare(rows)
     summary["tuned_is_paper"] = all(getattr(tuned, k) == getattr(paper, k) for k in sw.DesignPoint.TUNED)
@@ -418,7 +429,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     points = [paper, tuned]
     grid, poles = analysis_rows(cfg, points)
     responses = response_rows(cfg, points)
-    log(f"  analysis, responses: {time.perf_counter() - t_start:.1f} s")
+    phase("analysis and responses")
     tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
                         "AD through compiled rollouts of the loop; stability constraint: decay rate of the "
                         "multi-rate loop with the estimator >= sigma_min on every tuning case",
@@ -443,7 +454,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     from .limits import public
     _write_csv(out / "limits.csv", public(limit_rows))
     write_report(out)
-    log(f"  report: {time.perf_counter() - t_start:.1f} s")
+    phase("outputs and report")
     return doc
 
 

@@ -219,6 +219,69 @@ def check_ranges(log: DriveLog) -> None:
                                  f"error?)")
 
 
+UNIT_SLOPE_SE = 0.2
+"""Standard error of the course-on-gyro slope above which a log cannot tell the gyro's unit from the
+GPS course's (too little turning for the course noise): no verdict."""
+
+
+def check_units(log: DriveLog) -> None:
+    """Unit mistakes that the ranges of :data:`PLAUSIBLE` cannot see, found by consistency between
+    columns; raises :class:`LogFormatError` with the column, the evidence and the likely unit.
+
+    * ``yaw_rate`` against ``gps_course``: between consecutive fixes the course changes by the
+      integrated yaw rate plus the sideslip's change. The least-squares slope of the course
+      increments on the integrated yaw-rate increments is 1 for ISO 8855 units; 1/57.3 means the
+      yaw rate is in deg/s, 57.3 that the course is in degrees, -1 that the course is a compass
+      bearing (clockwise from north). Judged only when the slope's standard error (from the
+      residuals) is below :data:`UNIT_SLOPE_SE`.
+    * ``speed`` against ``gps_speed`` (above 3 m/s): a median ratio of 3.6 (or 1/3.6) means one of
+      them is in km/h, 2.24 in mph.
+    """
+    t, r = log["t"], log["yaw_rate"]
+    c = log["gps_course"]
+    k = np.flatnonzero(np.isfinite(c))
+    if len(k) >= 5:
+        psi = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(t))])
+        dpsi = np.diff(psi[k])
+        dc = np.diff(c[k])
+        dc_wrapped = (dc + np.pi) % (2 * np.pi) - np.pi
+        def fit(y):
+            """Least-squares slope of ``y`` on ``dpsi`` and its standard error."""
+            ss = float(np.dot(dpsi, dpsi))
+            if ss <= 0:
+                return 0.0, np.inf
+            b = float(np.dot(dpsi, y) / ss)
+            return b, float(np.sqrt(np.sum((y - b * dpsi) ** 2) / max(len(y) - 1, 1) / ss))
+
+        slope, se = fit(dc_wrapped)
+        slope_raw, se_raw = fit(dc)  # a course in degrees: increments of degrees, not wrapped at pi
+        evidence = (f"over {len(k)} fixes the GPS course changes {slope:.3g} times as much as the integrated "
+                    f"yaw rate (1 expected)")
+        if se < UNIT_SLOPE_SE and 1 / 100 < slope < 1 / 30:
+            raise LogFormatError(f"{log.source}: column 'yaw_rate': {evidence}; the yaw rate looks like deg/s "
+                                 "(ratio near 1/57.3), expected rad/s")
+        if se_raw < UNIT_SLOPE_SE * abs(slope_raw) and 30 < abs(slope_raw) < 100:
+            raise LogFormatError(f"{log.source}: column 'gps_course': over {len(k)} fixes the GPS course changes "
+                                 f"{slope_raw:.3g} times as much as the integrated yaw rate (1 expected); it looks "
+                                 "like degrees" + (" clockwise from north (a compass bearing)" if slope_raw < 0
+                                                   else "") + ", expected rad, counter-clockwise (ISO 8855)")
+        if se < UNIT_SLOPE_SE and -2.0 < slope < -0.5:
+            raise LogFormatError(f"{log.source}: column 'gps_course': {evidence}; it turns the other way than the "
+                                 "gyro: a compass bearing (clockwise from north), expected counter-clockwise from "
+                                 "the x axis (ISO 8855; course = pi/2 - bearing)")
+    if "gps_speed" in log:
+        v, g = log["speed"], log["gps_speed"]
+        ok = np.isfinite(v) & np.isfinite(g) & (g > 3.0) & (np.abs(v) > 0.1)
+        if ok.sum() >= 5:
+            ratio = float(np.median(v[ok] / g[ok]))
+            for factor, unit in ((3.6, "km/h"), (2.237, "mph")):
+                for col, rr in (("speed", ratio), ("gps_speed", 1.0 / ratio)):
+                    if abs(rr / factor - 1.0) < 0.1:
+                        raise LogFormatError(
+                            f"{log.source}: column '{col}': the median of speed / gps_speed over {int(ok.sum())} rows "
+                            f"is {ratio:.3g} (1 expected); '{col}' looks like {unit}, expected m/s")
+
+
 _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
 
 

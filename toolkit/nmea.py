@@ -111,7 +111,8 @@ def read_nmea(path) -> GpsEpochs:
         try:
             msg = pynmea2.parse(line, check=True)
         except pynmea2.ChecksumError as exc:
-            raise NmeaFormatError(f"{where}: checksum: {exc.args[0]}") from None
+            detail = exc.args[0][0] if exc.args and isinstance(exc.args[0], tuple) else exc.args[0]
+            raise NmeaFormatError(f"{where}: {detail} (a corrupted line)") from None
         except (pynmea2.ParseError, ValueError, AttributeError) as exc:
             raise NmeaFormatError(f"{where}: not an NMEA 0183 sentence ({exc})") from None
         kind = msg.sentence_type

@@ -162,8 +162,12 @@ def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[
 
 def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, *, max_iter: int = 30,
          stability_cases: list[Case] | None = None, caps: list[float] | None = None,
-         verbose: bool = False, workers: int | None = None) -> TuningResult:
+         verbose: bool = False, workers: int | None = None, progress: bool = False) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
+
+    ``progress``: a progress bar on stderr, one step per cost-and-gradient evaluation (IPOPT
+    evaluates about once per iteration, more when its line search backtracks), showing the
+    worst tuning case's cost of the last point.
 
     ``caps``: per tuning case an upper bound on its cost (``inf``: none). The design job
     caps the cases where the paper design is stable at ``REGRESS_FACTOR`` times their
@@ -191,6 +195,9 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
                                    initializer=sweep.single_threaded_blas)
     parts = [list(range(k, m, workers)) for k in range(workers)] if pool else [list(range(m))]
 
+    from tqdm import tqdm
+    bar = tqdm(total=max_iter + 1, desc="tuning", unit="eval", disable=not progress, leave=False)
+
     def evaluate(phi):
         key = tuple(np.round(phi, 15))
         if key not in cache:
@@ -208,6 +215,8 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
             cache[key] = (J, dJ)
             history.append((np.array(phi), J.copy()))
             counter["n"] += 1
+            bar.set_postfix_str(f"worst cost {float(np.max(J)):.4g}", refresh=False)
+            bar.update(1)
         return cache[key]
 
     class Costs(ca.Callback):
@@ -336,7 +345,8 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
     g = ca.vertcat(Jv - t, sigmas(phi), Jv)
     solver = ca.nlpsol("tune", "ipopt", {"x": x, "f": t, "g": g},
                        {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter,
-                        "ipopt.print_level": 5 if verbose else 0, "print_time": False,
+                        "ipopt.print_level": 5 if verbose else 0, "ipopt.sb": "no" if verbose else "yes",
+                        "print_time": False,
                         "ipopt.tol": 1e-4, "ipopt.acceptable_tol": 1e-3, "ipopt.mu_strategy": "adaptive"})
     J0, _ = evaluate(phi0)
     x0 = np.concatenate([phi0, [float(np.log(np.max(J0))) + 1e-3]])
@@ -351,6 +361,7 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
         if pool is not None:
             pool.shutdown()
         pool = None
+        bar.close()
     phi_opt = np.array(sol["x"]).ravel()[:-1]
     evaluate(phi_opt)
     _WORKER.clear()

@@ -133,7 +133,7 @@ def test_merge_places_each_epoch_on_one_imu_row_and_invents_none():
         merge_onto_imu(imu, G)
 
 
-def test_a_simulated_log_round_trips_through_nmea(tmp_path):
+def test_a_simulated_log_round_trips_through_nmea(tmp_path, capsys):
     """Write a simulated drive's GPS columns as NMEA (pynmea2) and its IMU columns as CSV; `evstab convert`
     gives back the schema columns, fixes on the same rows, values within the sentences' resolution."""
     p = load_vehicle("compact-ev")
@@ -168,6 +168,15 @@ def test_a_simulated_log_round_trips_through_nmea(tmp_path):
     assert np.abs(log["gps_hdop"][fix] - cols["gps_hdop"][fix]).max() <= 0.05 + 1e-12
     np.testing.assert_array_equal(log["gps_sats"][fix], cols["gps_sats"][fix])
     np.testing.assert_array_equal(log["yaw_rate"], cols["yaw_rate"])
+    # the same IMU log on its own clock (t from 0, the GPS on time of day): no fix would land on it;
+    # convert says so and names the offset that puts the first fix on the first row, writes nothing
+    write_log_csv(tmp_path / "imu0.csv", {**imu, "t": t, "gps_course": np.full(len(t), np.nan)})
+    out = tmp_path / "log0.csv"
+    assert main(["convert", "--nmea", str(tmp_path / "gps.nmea"), "--imu", str(tmp_path / "imu0.csv"),
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    offset = T0 + t[fix[0]] - t[0]
+    assert f"--time-offset {offset:.3f} puts the first fix" in err and not out.exists()
 
 
 def test_convert_refuses_a_bad_nmea_log_and_writes_nothing(tmp_path, capsys):

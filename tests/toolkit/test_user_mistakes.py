@@ -1,0 +1,131 @@
+"""Mistakes users make get a clear answer: physics checks on vehicle files, unit mistakes in logs found
+by consistency, command-line limits, the compile cache command. Every case exits 2 naming the field or
+column, writes nothing, and shows no traceback."""
+
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+
+from plants import load_vehicle
+from plants.errors import ParameterError
+from toolkit.cli import main
+
+P = load_vehicle("compact-ev")
+
+
+@pytest.mark.parametrize("change, message", [
+    # compact-ev: m_s h^2 = 1380 * 0.48^2 = 318 kg m^2; a user who copies the sprung mass's own inertia
+    (dict(roll_inertia=300.0), r"'roll_inertia' = 300.0 kg m\^2 is below sprung_mass \* roll_arm\^2"),
+    (dict(sprung_mass=1600.0), r"'sprung_mass' = 1600.0 kg exceeds 'mass' = 1550.0 kg"),
+    (dict(width=1.5), r"'track_front' = 1.52 m exceeds the overall 'width' = 1.5 m"),
+    (dict(lf=0.3, lr=0.4), r"wheelbase lf \+ lr = 0.3 \+ 0.4 = 0.7 m is outside \[1.0, 6.0\] m"),
+    (dict(wheel_radius=0.8), r"'wheel_radius' = 0.8 m is outside \[0.15, 0.6\] m"),
+    (dict(steering_ratio=3.0), r"'steering_ratio' = 3.0 is outside \[5.0, 30.0\]"),
+])
+def test_physically_impossible_parameters_are_refused_naming_field_and_bound(change, message):
+    with pytest.raises(ParameterError, match=message):
+        dataclasses.replace(P, **change)
+
+
+def test_every_bundled_vehicle_meets_the_physics_checks():
+    from plants import bundled_vehicles
+    for name in bundled_vehicles():
+        load_vehicle(name)  # raises if not
+
+
+def test_an_impossible_vehicle_file_exits_2_and_writes_nothing(tmp_path, capsys):
+    from toolkit.nominal import to_toml
+    f = tmp_path / "v.toml"
+    f.write_text(to_toml(P, "test").replace("roll_inertia = 800.0", "roll_inertia = 200.0"))
+    assert "roll_inertia = 200.0" in f.read_text()
+    out = tmp_path / "log.csv"
+    assert main(["simulate", "--vehicle", str(f), "--maneuver", "step-steer", "--speed", "60", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "roll_inertia" in err and "parallel-axis" in err and "Traceback" not in err and not out.exists()
+
+
+def test_a_speed_beyond_300_kmh_is_refused(tmp_path, capsys):
+    out = tmp_path / "log.csv"
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "800", "--out", str(out)])
+    assert e.value.code == 2 and "800 km/h is beyond 300 km/h" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.fixture(scope="module")
+def log_rows(tmp_path_factory):
+    """A gentle drive (1 deg sine lane change at 40 km/h: the gyro never leaves +-10 rad/s even in deg/s)."""
+    d = tmp_path_factory.mktemp("units")
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "sine-lane-change", "--speed", "40",
+                 "--amplitude", "1", "--out", str(d / "log.csv")]) == 0
+    with open(d / "log.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return rows
+
+
+def _write(path, rows, col, f):
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            r = dict(r)
+            if r[col] != "":
+                r[col] = repr(float(f(float(r[col]))))
+            w.writerow(r)
+
+
+@pytest.mark.parametrize("col, f, message", [
+    ("yaw_rate", np.degrees, r"column 'yaw_rate'.*looks like deg/s"),
+    ("speed", lambda v: 3.6 * v, r"column 'speed'.*looks like km/h"),
+    ("gps_course", lambda c: np.pi / 2 - c, r"column 'gps_course'.*compass bearing \(clockwise from north\)"),
+    ("gps_course", lambda c: 90.0 - np.degrees(c), r"column 'gps_course'.*degrees clockwise from north"),
+    ("gps_course", np.degrees, r"column 'gps_course'.*looks like degrees, expected rad"),
+])
+def test_unit_mistakes_are_found_by_consistency(tmp_path, capsys, log_rows, col, f, message):
+    import re
+    bad, out = tmp_path / "bad.csv", tmp_path / "est.csv"
+    _write(bad, log_rows, col, f)
+    assert main(["estimate", str(bad), "--vehicle", "compact-ev", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err) and "Traceback" not in err and not out.exists()
+    # the user who knows better overrides the check
+    assert main(["estimate", str(bad), "--vehicle", "compact-ev", "--out", str(out), "--trust-units"]) == 0
+
+
+def test_the_correct_log_passes_the_unit_checks(tmp_path, log_rows):
+    good, out = tmp_path / "good.csv", tmp_path / "est.csv"
+    _write(good, log_rows, "speed", lambda v: v)
+    assert main(["estimate", str(good), "--vehicle", "compact-ev", "--out", str(out)]) == 0
+
+
+def test_a_log_without_a_fix_is_refused(tmp_path, capsys, log_rows):
+    bad, out = tmp_path / "nofix.csv", tmp_path / "est.csv"
+    rows = [dict(r, gps_course="") for r in log_rows]
+    _write(bad, rows, "speed", lambda v: v)
+    assert main(["estimate", str(bad), "--vehicle", "compact-ev", "--out", str(out)]) == 2
+    assert "no GPS fix" in capsys.readouterr().err and not out.exists()
+
+
+def test_help_states_the_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = capsys.readouterr().out
+    assert "(default: 0.001)" in text and "(default: 0)" in text
+
+
+def test_cache_command_shows_and_clears(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("EVSTAB_CACHE", str(tmp_path))
+    (tmp_path / "evstab_abc.so").write_bytes(b"x" * 2048)
+    (tmp_path / "not_ours.txt").write_text("keep")
+    assert main(["cache"]) == 0
+    assert f"{tmp_path}: 1 files" in capsys.readouterr().out
+    assert main(["cache", "--clear"]) == 0
+    assert "removed 1 files" in capsys.readouterr().out
+    assert not (tmp_path / "evstab_abc.so").exists() and (tmp_path / "not_ours.txt").exists()
+
+
+def test_export_of_a_missing_folder_is_a_sentence(tmp_path, capsys):
+    assert main(["export", str(tmp_path / "nothing"), "--out", str(tmp_path / "fw")]) == 2
+    err = capsys.readouterr().err
+    assert "no such file; expected an 'evstab design' folder" in err and "Errno" not in err
