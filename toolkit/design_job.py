@@ -354,7 +354,7 @@ def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, schedu
                       "limit_runs_passed": j["limit_runs_passed"], "limit_runs": j["limit_runs"],
                       "accepted": not why, "rejected_because": "; ".join(why)})
         log(f"  limit check, step {s:g} towards the tuned point (K_beta {point.k_beta:.4g}, K_gamma "
-            f"{point.k_gamma:.4g}): " + ("accepted" if not why else "rejected, " + "; ".join(why)[:200]))
+            f"{point.k_gamma:.4g}): " + ("accepted" if not why else "rejected, " + "; ".join(why)))
         return (point, rows, none + paper_lim + lim) if not why else None
 
     # the candidate itself, else bisection on the step (largest accepted step to 1/8)
