@@ -73,6 +73,11 @@ def main() -> None:
     print(f"compiled sweep ({args.plant}): {args.cases} cases x {2 * sw.MANEUVER_DURATION:g} s at 1 kHz on "
           f"{args.workers} worker(s): {t_sweep:.2f} s ({t_sweep / steps * 1e9:.0f} ns per loop step and case, "
           f"wall; target <= 2 s)")
+    import resource
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker
+    print(f"peak resident memory: {own:.0f} MiB in this process (the {len(rows)} summary rows), {child:.0f} MiB in "
+          f"the largest worker (target < 2 GiB)")
     t0 = time.perf_counter()
     sw.run_sweep(cfg, cases[:50], [sw.PAPER], workers=args.workers, progress=False, batch=5)
     print(f"linear multi-rate verdicts included, first 50 cases: {time.perf_counter() - t0:.2f} s")

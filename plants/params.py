@@ -32,6 +32,10 @@ G = 9.80665
 
 WHEELBASE_RANGE = (1.0, 6.0)
 """Wheelbase [m] of a road vehicle (a micro car to a long van)."""
+MASS_MIN = 50.0
+"""Smallest total mass [kg] of a road vehicle."""
+DYNAMIC_INDEX_RANGE = (0.3, 3.0)
+"""Range of the dynamic index I_z / (m l_f l_r) (0.8-1.2 for road cars; the bundled vehicles 0.91-1.10)."""
 WHEEL_RADIUS_RANGE = (0.15, 0.6)
 """Rolling radius [m] of a road vehicle's wheel."""
 STEERING_RATIO_RANGE = (5.0, 30.0)
@@ -159,6 +163,15 @@ class VehicleParams:
             raise ParameterError(
                 f"{n}: wheelbase lf + lr = {self.lf!r} + {self.lr!r} = {L:.4g} m is outside "
                 f"[{WHEELBASE_RANGE[0]}, {WHEELBASE_RANGE[1]}] m (lf and lr are in metres)")
+        if self.mass < MASS_MIN:
+            raise ParameterError(f"{n}: field 'mass' = {self.mass!r} kg is below {MASS_MIN:g} kg (the total vehicle "
+                                 "mass, in kg)")
+        index = self.yaw_inertia / (self.mass * self.lf * self.lr) if self.lf > 0 and self.lr > 0 else None
+        if index is not None and not DYNAMIC_INDEX_RANGE[0] <= index <= DYNAMIC_INDEX_RANGE[1]:
+            raise ParameterError(
+                f"{n}: field 'yaw_inertia' = {self.yaw_inertia!r} kg m^2 gives a dynamic index I_z / (m l_f l_r) "
+                f"= {index:.3g}, outside [{DYNAMIC_INDEX_RANGE[0]}, {DYNAMIC_INDEX_RANGE[1]}] (road cars: 0.8-1.2; "
+                "the yaw inertia is in kg m^2 about the CG)")
         if self.sprung_mass is not None and self.sprung_mass > self.mass:
             raise ParameterError(
                 f"{n}: field 'sprung_mass' = {self.sprung_mass!r} kg exceeds 'mass' = {self.mass!r} kg "

@@ -71,12 +71,19 @@ _PLANT_HELP = ("plant: " + ", ".join(PLANT_SPECS) + " (CommonRoad's multi-body c
                "the package's set and --vehicle is what estimator and controller believe)")
 
 
+def _shorten(text: str, limit: int) -> str:
+    """``text``, or its words up to ``limit`` characters followed by "..." (never cut mid-word)."""
+    if len(text) <= limit:
+        return text
+    return text[:limit + 1].rsplit(" ", 1)[0].rstrip(",;:(") + " ..."
+
+
 def cmd_vehicles(args) -> int:
     for key in bundled_vehicles():
         p = load_vehicle(key)
         print(f"{key:12s} m={p.mass:7.1f} kg  L={p.wheelbase:.3f} m  Cf/Cr={p.cornering_stiffness_front:.0f}/"
               f"{p.cornering_stiffness_rear:.0f} N/rad per tire  K_us={np.degrees(p.understeer_gradient):.3f} "
-              f"deg/(m/s^2)  -- {p.source[:70]}")
+              f"deg/(m/s^2)  -- {_shorten(p.source, 90)}")
     return 0
 
 
@@ -94,6 +101,12 @@ def cmd_simulate(args) -> int:
     controller, estimator, design = _loop_choice(args)
     res = simulate(p, args.plant, man, disturbances=dist, sensors=sensors, seed=args.seed, dt=args.dt,
                    controller=controller, estimator=estimator, design=design)
+    from .logio import DriveLog, LogFormatError, check_ranges
+    try:  # never write a log that the reader would refuse
+        check_ranges(DriveLog(res.log_columns(), "the simulated run"))
+    except LogFormatError as exc:
+        raise EvstabError(f"{p.name}: {exc}; the vehicle parameters do not describe a car that can drive this "
+                          "manoeuvre") from None
     res.write_csv(args.out)
     if args.plot:
         plot_run(res, args.plot, man)
@@ -337,7 +350,10 @@ def cmd_score_swd(args) -> int:
     if "ay" not in log:
         from .logio import LogFormatError
         raise LogFormatError(f"{args.log}: scoring needs the lateral acceleration column 'ay'")
-    sc = score_swd(log["t"], steer * p.steering_ratio, log["yaw_rate"], log["ay"])
+    try:
+        sc = score_swd(log["t"], steer * p.steering_ratio, log["yaw_rate"], log["ay"])
+    except (ValueError, IndexError) as exc:  # not a sine-with-dwell run (too short, no 5 deg steer)
+        raise EvstabError(f"{args.log}: cannot score it as a sine with dwell ({exc})") from None
     amp = float(np.degrees(np.max(np.abs(steer)) * p.steering_ratio))
     line = (f"BOS {sc.bos:.3f} s, COS {sc.cos:.3f} s, amplitude {amp:.1f} deg: yaw ratio {sc.yaw_ratio_1_0:.1f} % at "
             f"COS+1.0 s, {sc.yaw_ratio_1_75:.1f} % at COS+1.75 s, lateral displacement "

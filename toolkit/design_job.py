@@ -201,8 +201,9 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
         sens = case.sensors(cfg.sensors)
         for man in sw.standard_maneuvers(cfg, case.speed_kmh / 3.6):
             r = simulate(true, cfg.plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=case.seed)
-            runs = {"no control": (r.t, r.truth["yaw_rate"], r.truth["beta"], np.full(len(r.t), np.nan),
-                                   r.commands["steer"], np.zeros(len(r.t)))}
+            nan = np.full(len(r.t), np.nan)
+            runs = {"no control": (r.t, r.truth["yaw_rate"], r.truth["beta"], nan, nan, r.commands["steer"],
+                                   np.zeros(len(r.t)))}
             U, z0, pv = prog.inputs(true, man, Disturbances(friction=Friction(mu=mu)), sens, case.seed)
             for pt in points:
                 th = prog.theta(**pt.calibration(), mu_assumed=cfg.base_design().mu_max)  # not told the road
@@ -211,13 +212,13 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
                 from .closed_loop import EXTRA
                 t = np.arange(len(U)) * cfg.dt
                 runs[pt.name] = (t, Y[:, TRUTH.index("yaw_rate")], Y[:, TRUTH.index("beta")],
-                                 E[:, EXTRA.index("yaw_rate_ref")], E[:, EXTRA.index("steer")],
-                                 E[:, EXTRA.index("yaw_moment")])
-            for label, (t, yr, b, ref, st, nz) in runs.items():
+                                 E[:, EXTRA.index("yaw_rate_ref")], E[:, EXTRA.index("beta_ref")],
+                                 E[:, EXTRA.index("steer")], E[:, EXTRA.index("yaw_moment")])
+            for label, (t, yr, b, ref, bref, st, nz) in runs.items():
                 for k in range(0, len(t), decimate):
                     rows.append({"mu": mu, "maneuver": man.name, "controller": label, "t": float(t[k]),
                                  "yaw_rate": float(yr[k]), "beta": float(b[k]), "yaw_rate_ref": float(ref[k]),
-                                 "steer": float(st[k]), "yaw_moment": float(nz[k])})
+                                 "beta_ref": float(bref[k]), "steer": float(st[k]), "yaw_moment": float(nz[k])})
     return rows
 
 
@@ -407,7 +408,9 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         log(f"  {text}: {now - clock['last']:.1f} s (total {now - t_start:.1f} s)")
         clock["last"] = now
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        from plants.errors import EvstabError
+        raise EvstabError(f"{out}: exists and is not a folder; --out names the design folder to write")
     params = load_vehicle(vehicle)
     cfg = sw.SweepConfig(params, plant=plant)
     cases = sw.sweep_cases(quick=quick, plant=plant)
@@ -445,6 +448,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
                       "(0.5 deg)^2 + ms(beta_hat - beta)/(0.5 deg)^2 + 0.1 ms(N_z)/N_z,max^2"}
     cmd = command or "evstab design --vehicle " + shlex.quote(vehicle) + (" --quick" if quick else "")
     doc = design_document(cfg, tuned, paper, summary, tuning, cmd)
+    out.mkdir(parents=True, exist_ok=True)  # only now: a job that fails leaves no folder behind
     _write_json(out / "design.json", doc)
     _write_csv(out / "sweep.csv", rows)
     _write_parquet(out / "sweep.parquet", rows)

@@ -23,7 +23,7 @@ NEEDED = ("design.json", "sweep.csv", "analysis.csv", "poles.csv", "responses.cs
 
 
 def fmt(v) -> str:
-    """Numbers as the report prints them (6 significant digits), booleans as yes/no."""
+    """Numbers as the report prints them (4 significant digits), booleans as yes/no."""
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, (int, np.integer)):
@@ -31,7 +31,9 @@ def fmt(v) -> str:
     if isinstance(v, (float, np.floating)):
         if not np.isfinite(v):
             return str(v)
-        return f"{v:.6g}"
+        if 1e4 <= abs(v) < 1e9:  # a large number in full (34729, not 3.473e+04)
+            return f"{v:.0f}"
+        return f"{v:.4g}"
     return str(v)
 
 
@@ -44,6 +46,10 @@ class Doc:
 
     def p(self, text: str):
         self.blocks.append(("p", text))
+
+    def verdict(self, lines: list[str]):
+        """A boxed summary (a blockquote in Markdown)."""
+        self.blocks.append(("verdict", lines))
 
     def table(self, rows: list[dict], cols: list[str] | None = None, headers: list[str] | None = None):
         if not rows:
@@ -66,6 +72,8 @@ class Doc:
                 out.append("#" * b[1] + " " + b[2] + "\n")
             elif b[0] == "p":
                 out.append(b[1] + "\n")
+            elif b[0] == "verdict":
+                out.append("\n".join(f"> {line}  " for line in b[1]) + "\n")
             elif b[0] == "table":
                 hdr, rows = b[1], b[2]
                 out.append("| " + " | ".join(hdr) + " |\n|" + "---|" * len(hdr))
@@ -80,12 +88,15 @@ class Doc:
                "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
                "table{border-collapse:collapse;margin:1em 0;font-size:0.85em}td,th{border:1px solid #bbb;"
                "padding:2px 6px;text-align:right}th{background:#eee}img{max-width:100%}"
-               "figcaption{font-style:italic;color:#555}</style></head><body>"]
+               "figcaption{font-style:italic;color:#555}.verdict{border:2px solid #333;padding:0.3em 1em;"
+               "background:#f6f6f0}.verdict p{margin:0.4em 0}</style></head><body>"]
         for b in self.blocks:
             if b[0] == "h":
                 out.append(f"<h{b[1]}>{html.escape(b[2])}</h{b[1]}>")
             elif b[0] == "p":
                 out.append(f"<p>{html.escape(b[1])}</p>")
+            elif b[0] == "verdict":
+                out.append("<div class=\"verdict\">" + "".join(f"<p>{html.escape(x)}</p>" for x in b[1]) + "</div>")
             elif b[0] == "table":
                 out.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in b[1]) + "</tr>")
                 out.extend("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in b[2])
@@ -109,6 +120,75 @@ def load_outputs(d: Path) -> dict:
             "responses": read_csv(d / "responses.csv"), "limits": read_csv(d / "limits.csv")}
 
 
+def param_unit(name: str) -> str:
+    """The unit of a vehicle parameter, from its field documentation (``[...]`` at the end)."""
+    import re
+    from dataclasses import fields
+
+    from plants.params import VehicleParams
+    doc = next((f.metadata.get("doc", "") for f in fields(VehicleParams) if f.name == name), "")
+    m = re.search(r"\[([^\]]+)\]\s*$", doc)
+    return m.group(1) if m else "-"
+
+
+def _case_text(r: dict) -> str:
+    parts = [f"mu {r['mu']:.2f}", f"{r['speed_kmh']:.0f} km/h"]
+    for key, label in (("cf_scale", "front stiffness"), ("cr_scale", "rear stiffness"), ("mass_scale", "mass"),
+                       ("inertia_scale", "yaw inertia")):
+        if abs(r[key] - 1.0) > 1e-9:
+            parts.append(f"{label} {100 * (r[key] - 1):+.0f} %")
+    parts.append(f"GPS {r['gps_rate']:g} Hz")
+    if r["gps_latency"]:
+        parts.append(f"latency {1000 * r['gps_latency']:.0f} ms")
+    return f"case {r['case_id']} ({r['group']}: " + ", ".join(parts) + ")"
+
+
+def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], designs: list[str]) -> list[str]:
+    """The first screen: stable or not, FMVSS 126 per friction, the limit rule, the weakest case."""
+    s, tuned = doc["sweep"], designs[-1]
+    lines = [f"Verdict for the {tuned} design" + (" (the paper design, unchanged: no tuned point met the limit "
+                                                   "constraint)" if s.get("tuned_is_paper") else "") + "."]
+    lines.append(f"Stable in {s[tuned]['stable_cases']} of {s['cases']} model-error cases (paper design "
+                 f"{s['paper']['stable_cases']}); stable wherever the paper design is: "
+                 f"{fmt(s['tuned_stable_where_paper_stable'])}.")
+    fm = [c for c in lim_by.values() if c["no control"]["kind"] == "fmvss126"]
+    if fm:
+        lines.append("FMVSS 126: " + "; ".join(
+            f"{c[tuned]['plant']} mu {c[tuned]['mu']:g} {'PASS' if c[tuned]['pass'] else 'FAIL'} "
+            f"({c[tuned]['runs_passed']}/{c[tuned]['runs']} runs; no control {c['no control']['runs_passed']})"
+            for c in fm) + ".")
+    lim = s.get("limits", {}).get(tuned)
+    if lim:
+        lines.append(f"Limit manoeuvres: {lim['limit_runs_held']} of {lim['limit_runs']} runs hold the car; no worse "
+                     "than no control in every one: " + fmt(lim["no_worse_than_no_control"])
+                     + ("" if lim["no_worse_than_no_control"] else " (" + "; ".join(lim["worse_than_no_control"]) + ")")
+                     + ".")
+    rows = by.get(tuned, {})
+    if rows:
+        w = rows[s[tuned]["worst_case_id"]]
+        if not w["bounded"]:
+            what = (f"the car is lost in the standard manoeuvres (sine lane change and step steer): peak sideslip "
+                    f"{w['beta_max_deg']:.1f} deg, beyond the sweep's 20 deg bound")
+        elif not w["linear_stable"]:
+            what = f"the sampled loop with the estimator is unstable (spectral radius {w['spectral_radius']:.4g})"
+        else:
+            what = (f"yaw-rate tracking error {w['yaw_rate_rms_err'] * 57.29578:.3g} deg/s RMS, sideslip estimation "
+                    f"error {w['beta_rms_deg']:.3g} deg RMS, peak sideslip {w['beta_max_deg']:.3g} deg")
+        lost = sum(1 for r in rows.values() if not r["stable"])
+        lines.append(f"Weakest: {_case_text(w)}, cost {fmt(w['cost'])}: {what}"
+                     + (f"; {lost} case(s) in all are not stable." if lost else "."))
+    peaks = {}
+    for r in responses:
+        if r["controller"] == tuned:
+            k = (r["mu"], r["maneuver"])
+            peaks[k] = max(peaks.get(k, 0.0), abs(r["beta"]))
+    if peaks:
+        (mu, man), b = max(peaks.items(), key=lambda kv: kv[1])
+        lines.append(f"Largest sideslip of the {tuned} design in the time responses below: {57.29578 * b:.2f} deg "
+                     f"({man} at 80 km/h on mu {mu:g}).")
+    return lines
+
+
 def build(data: dict) -> Doc:
     import matplotlib
     matplotlib.use("Agg")
@@ -129,6 +209,10 @@ def build(data: dict) -> Doc:
     for r in lim:
         lim_by.setdefault(r["case"], {})[r["design"]] = r
     labels = ["no control"] + designs
+    by = {}
+    for r in sweep:
+        by.setdefault(r["design"], {})[r["case_id"]] = r
+    D.verdict(verdict_lines(doc, by, lim_by, data["responses"], designs))
     D.p("FMVSS 126 sine with dwell at 80 km/h (runs passed of every amplitude and both directions; A is the "
         "hand-wheel angle for 0.3 g from the slowly increasing steer on the same surface), closed loop with the "
         "ECU as exported, not told the friction:")
@@ -144,8 +228,9 @@ def build(data: dict) -> Doc:
             "and the margin (" + "; ".join(f"step {fmt(t['step'])}: {t['rejected_because']}" for t in sel) + ").")
     elif sel:
         t = max((t for t in sel if t["accepted"]), key=lambda t: t["step"])
-        D.p(f"The tuned design is the tuning's candidate taken {fmt(t['step'])} of the way from the paper design "
-            "(log space). Limit constraint: " + doc["tuning"]["limit_constraint"] + ".")
+        where = ("the tuning's candidate itself" if t["step"] == 1 else
+                 f"the tuning's candidate taken {fmt(t['step'])} of the way from the paper design (log space)")
+        D.p(f"The tuned design is {where}. Limit constraint: " + doc["tuning"]["limit_constraint"] + ".")
         D.table([{"step": t["step"], "K_beta [rad/s]": t["k_beta"], "K_gamma [rad/s]": t["k_gamma"],
                   "worst cost": t["worst_cost"], "limit runs held": f"{t['limit_runs_passed']}/{t['limit_runs']}",
                   "accepted": t["accepted"], "why not": t["rejected_because"][:160] or "-"} for t in sel])
@@ -170,7 +255,8 @@ def build(data: dict) -> Doc:
     p = veh["nominal_params"]
     keys = ["mass", "yaw_inertia", "lf", "lr", "cornering_stiffness_front", "cornering_stiffness_rear", "mu",
             "max_motor_torque", "track_rear", "wheel_radius", "steering_ratio"]
-    D.table([{"parameter": k, "nominal value": p.get(k)} for k in keys if p.get(k) is not None])
+    D.table([{"parameter": k, "nominal value": p.get(k), "unit": param_unit(k)} for k in keys
+             if p.get(k) is not None])
     D.p(f"Parameter-set hash {veh['params_digest']}; plant model {doc['plant_model']}; control period "
         f"{fmt(doc['control_period_s'])} s; GPS {fmt(doc['gps']['rate_hz'])} Hz, latency "
         f"{fmt(doc['gps']['latency_s'])} s (designed).")
@@ -193,11 +279,20 @@ def build(data: dict) -> Doc:
             ["speed_kmh", "observable", "observability_rank", "observability_sv_ratio", "unobservable", "riccati",
              "estimator_slowest_rate_1_s"])
     D.h(3, "Internal stability and margins")
-    D.table(an, ["design", "speed_kmh", "internally_stable", "loop_margin_1_s", "gm_delta_db", "pm_delta_deg",
-                 "gm_nz_db", "pm_nz_deg", "disk_margin_min", "sensitivity_peak_max", "multirate_stable",
-                 "multirate_spectral_radius"])
+    D.table(an, ["design", "speed_kmh", "internally_stable", "loop_margin_1_s", "multirate_stable",
+                 "multirate_spectral_radius"],
+            ["design", "speed [km/h]", "internally stable", "loop decay rate [1/s]", "multi-rate loop stable",
+             "multi-rate spectral radius [-]"])
+    D.table(an, ["design", "speed_kmh", "gm_delta_db", "pm_delta_deg", "gm_nz_db", "pm_nz_deg", "disk_margin_min",
+                 "sensitivity_peak_max"],
+            ["design", "speed [km/h]", "GM steer [dB]", "PM steer [deg]", "GM Nz [dB]", "PM Nz [deg]",
+             "disk margin [-]", "sensitivity peak [-]"])
     D.p("Margins are loop-at-a-time at the plant inputs (steer delta, yaw moment Nz), other channel closed; disk "
-        "margin and sensitivity peak are the smallest / largest over the four loop-breaking points.")
+        "margin and sensitivity peak are the smallest / largest over the four loop-breaking points. A negative "
+        "gain margin in dB is not an instability: the loop is stable as designed and stays stable for any gain "
+        "increase, but becomes unstable if that channel's gain is reduced by the stated amount (its loop gain "
+        "crosses -180 deg above 0 dB, as a loop around an open-loop unstable or conditionally stable channel does); "
+        "inf means no crossing.")
     poles = data["poles"]
     for plane, title in (("s", "Loop poles in the s-plane (controller + nominal bicycle plant)"),
                          ("z", "Multi-rate loop with the estimator: monodromy eigenvalues over one GPS period")):
@@ -227,30 +322,38 @@ def build(data: dict) -> Doc:
     cfs = sorted({r["cf_scale"] for r in grid})
     crs = sorted({r["cr_scale"] for r in grid})
     if cfs and crs:
+        from matplotlib.colors import ListedColormap, LogNorm
+        from matplotlib.patches import Patch
+        vals = [float(r["beta_rms_deg"]) for r in grid if float(r["beta_rms_deg"]) > 0]
+        norm = LogNorm(vmin=min(vals), vmax=max(vals)) if vals else None  # one scale for every design
+        verdict_cmap = ListedColormap(["#d7301f", "#1a9850"])
         fig, axes = plt.subplots(2, len(designs), figsize=(10, 8), squeeze=False)
         for j, dn in enumerate(designs):
-            for i, (key, label, cmap) in enumerate((("stable", "stable (1) / not (0)", "RdYlGn"),
-                                                    ("beta_rms_deg", "sideslip estimation RMS [deg]", "magma_r"))):
+            for i, key in enumerate(("stable", "beta_rms_deg")):
                 M = np.full((len(crs), len(cfs)), np.nan)
                 for r in grid:
                     if r["design"] == dn:
                         M[crs.index(r["cr_scale"]), cfs.index(r["cf_scale"])] = float(r[key])
                 ax = axes[i, j]
-                im = ax.imshow(M, origin="lower", cmap=cmap, aspect="auto",
-                               norm=None if key == "stable" else matplotlib.colors.LogNorm(),
-                               vmin=0 if key == "stable" else None, vmax=1 if key == "stable" else None)
+                if key == "stable":
+                    ax.imshow(M, origin="lower", cmap=verdict_cmap, vmin=0, vmax=1, aspect="auto")
+                    ax.legend(handles=[Patch(color="#1a9850", label="stable"), Patch(color="#d7301f", label="not stable")],
+                              loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2, fontsize=8)
+                    ax.set_title(f"{dn}: stability verdict")
+                else:
+                    im = ax.imshow(M, origin="lower", cmap="magma_r", aspect="auto", norm=norm)
+                    ax.set_title(f"{dn}: sideslip estimation RMS [deg]")
+                    fig.colorbar(im, ax=ax)
+                    for (yy, xx), v in np.ndenumerate(M):
+                        ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7, color="k",
+                                path_effects=[patheffects.withStroke(linewidth=2, foreground="w")])
                 ax.set_xticks(range(len(cfs)), [f"{(c - 1) * 100:+.0f}%" for c in cfs])
                 ax.set_yticks(range(len(crs)), [f"{(c - 1) * 100:+.0f}%" for c in crs])
                 ax.set_xlabel("front cornering stiffness error")
                 ax.set_ylabel("rear cornering stiffness error")
-                ax.set_title(f"{dn}: {label}")
-                for (yy, xx), v in np.ndenumerate(M):
-                    ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7, color="k",
-                            path_effects=[patheffects.withStroke(linewidth=2, foreground="w")])
-                fig.colorbar(im, ax=ax)
         fig.tight_layout()
         D.figure("sweep_heatmaps", fig, "Stiffness grid at 80 km/h, mu 1: stability verdict and sideslip "
-                                        "estimation RMS")
+                                        "estimation RMS (one colour scale for both designs)")
     groups = sorted({r["group"] for r in sweep})
     D.table([{"group": g, **{f"{dn} worst cost": max(r["cost"] for r in sweep if r["group"] == g and
                                                      r["design"] == dn) for dn in designs},
@@ -287,8 +390,14 @@ def build(data: dict) -> Doc:
         for label in sorted({r["controller"] for r in resp}):
             rr = [r for r in resp if r["mu"] == mu and r["maneuver"] == man and r["controller"] == label]
             tt = [r["t"] for r in rr]
-            axes[i, 0].plot(tt, np.degrees([r["yaw_rate"] for r in rr]), label=label)
-            axes[i, 1].plot(tt, np.degrees([r["beta"] for r in rr]), label=label)
+            line, = axes[i, 0].plot(tt, np.degrees([r["yaw_rate"] for r in rr]), label=label)
+            axes[i, 1].plot(tt, np.degrees([r["beta"] for r in rr]), label=label, color=line.get_color())
+            if label != "no control":  # the reference each design tracks, dashed in its colour
+                axes[i, 0].plot(tt, np.degrees([r["yaw_rate_ref"] for r in rr]), "--", lw=0.9,
+                                color=line.get_color(), label=f"{label} reference")
+                if "beta_ref" in rr[0]:
+                    axes[i, 1].plot(tt, np.degrees([r["beta_ref"] for r in rr]), "--", lw=0.9,
+                                    color=line.get_color())
         axes[i, 0].set_ylabel(f"mu {mu:g} {man}\nyaw rate [deg/s]", fontsize=8)
         axes[i, 1].set_ylabel("sideslip [deg]")
         for ax in axes[i]:
@@ -297,7 +406,8 @@ def build(data: dict) -> Doc:
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     fig.tight_layout()
-    D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design")
+    D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design; "
+                               "dashed: each design's reference (yaw rate, sideslip)")
 
     D.h(2, "Provenance")
     pv = doc["provenance"]

@@ -1,6 +1,7 @@
 """The design job: sweep vs single runs, casadi rollouts vs the numpy simulator, executors, report vs JSON."""
 
 import json
+from pathlib import Path
 import shutil
 import subprocess
 
@@ -79,6 +80,23 @@ def test_dask_and_local_executors_give_identical_rows():
     dask = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], executor="dask", workers=2, progress=False, batch=2)
     serial = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], workers=1, progress=False)
     assert local == dask == serial  # exact: same seeds, same compiled code, order restored
+
+
+def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
+    # a real scheduler on 127.0.0.1 and two worker processes (spawned: each imports evstab and loads
+    # the compiled loop from the cache), started and stopped here; blocks of cases per task
+    distributed = pytest.importorskip("distributed")
+    cases = [CASE_A, CASE_B, sw.Case(2, group="nominal"), sw.Case(3, mu=0.5, group="mu")]
+    local = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], workers=1, progress=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        with distributed.Client(cluster) as client:
+            pids = set(client.run(__import__("os").getpid).values())
+        assert len(pids) == 2 and __import__("os").getpid() not in pids  # two processes, not this one
+        rows = sw.run_sweep(CFG, cases, [sw.PAPER, TUNED], executor="dask", scheduler=cluster.scheduler_address,
+                            progress=False, batch=2)
+    assert rows == local  # exact: same seeds, same compiled code, order restored
 
 
 def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
@@ -160,13 +178,14 @@ def test_report_numbers_are_the_design_json_numbers(design_dir):
     md = (design_dir / "report.md").read_text()
     html = (design_dir / "report.html").read_text()
     s = doc["sweep"]
-    for text in (md, html):
+    import html as html_lib
+    for text, esc in ((md, str), (html, html_lib.escape)):  # the HTML escapes quotes in the command line
         assert f"paper design cost {fmt(s['paper']['worst_cost'])}" in text
         assert f"tuned design cost {fmt(s['tuned']['worst_cost'])}" in text
         assert f"paper {fmt(s['paper']['stable_cases'])} of {fmt(s['cases'])}" in text
         for k, v in doc["designs"]["tuned"].items():
             assert f"| {k} | {fmt(doc['designs']['paper'][k])} | {fmt(v)} |" in md
-        assert doc["vehicle"]["params_digest"] in text and doc["provenance"]["command"] in text
+        assert doc["vehicle"]["params_digest"] in text and esc(doc["provenance"]["command"]) in text
     assert "data:image/png;base64," in html and "src=\"figures/" not in html  # self-contained
     for name in ("poles_s", "poles_z", "sweep_heatmaps", "responses", "cost_paper_vs_tuned"):
         assert (design_dir / "figures" / f"{name}.png").stat().st_size > 5000
@@ -197,21 +216,60 @@ def _chromium():
     return None
 
 
-def test_report_html_renders_in_headless_chromium(design_dir, tmp_path):
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("no Chromium on this machine (.ci/run installs it from the system packages)")
-    shot = tmp_path / "report.png"
+_PROBE = """<script>window.addEventListener('load', function () {
+  var imgs = document.images, broken = 0;
+  for (var i = 0; i < imgs.length; i++) { if (!(imgs[i].complete && imgs[i].naturalWidth > 0)) broken++; }
+  var p = document.createElement('pre'); p.id = 'probe';
+  p.textContent = 'PROBE ' + document.documentElement.scrollWidth + ' ' + window.innerWidth + ' ' + imgs.length + ' ' + broken;
+  document.body.appendChild(p);
+});</script>"""
+
+
+def _browser_checks(exe, report: Path, tmp_path: Path) -> None:
+    """At 1400 px: no horizontal scroll, every image loaded (a copy of the report with a probe script;
+    the report itself carries no script); and a screenshot that is far from one flat colour."""
+    probe = tmp_path / f"probe_{report.parent.name}.html"
+    probe.write_text(report.read_text().replace("</body>", _PROBE + "</body>"))
+    res = subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--window-size=1400,900",
+                          "--virtual-time-budget=5000", "--dump-dom", probe.resolve().as_uri()],
+                         capture_output=True, text=True, timeout=120)
+    import re
+    m = re.search(r"PROBE (\d+) (\d+) (\d+) (\d+)<", res.stdout)
+    assert m, res.stderr[-2000:]
+    scroll, inner, images, broken = map(int, m.groups())
+    assert scroll <= inner, f"horizontal scroll: page {scroll} px wide in a {inner} px window"
+    assert images >= 5 and broken == 0
+    shot = tmp_path / f"shot_{report.parent.name}.png"
     res = subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-                          f"--screenshot={shot}", "--window-size=1200,3000",
-                          (design_dir / "report.html").resolve().as_uri()],
+                          f"--screenshot={shot}", "--window-size=1400,3000", report.resolve().as_uri()],
                          capture_output=True, text=True, timeout=120)
     assert shot.is_file(), res.stderr[-2000:]
     import matplotlib.image
     img = matplotlib.image.imread(str(shot))
-    assert img.shape[0] == 3000 and img.shape[1] == 1200
+    assert img.shape[0] == 3000 and img.shape[1] == 1400
     # a rendered page has text, tables and figures: far from one flat colour
     assert float(np.std(img[..., :3])) > 0.05
+
+
+def test_report_html_renders_in_headless_chromium(design_dir, tmp_path):
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("no Chromium on this machine (.ci/run installs it from the system packages)")
+    _browser_checks(exe, design_dir / "report.html", tmp_path)
+
+
+def test_report_of_a_commonroad_car_passes_the_browser_checks(tmp_path_factory, tmp_path):
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("no Chromium on this machine (.ci/run installs it from the system packages)")
+    from toolkit.cli import main
+    out = tmp_path_factory.mktemp("cr1") / "design"
+    assert main(["design", "--vehicle", "commonroad-1", "--out", str(out), "--quick", "--no-progress"]) == 0
+    text = (out / "report.md").read_text()
+    # the first screen answers: stable?, FMVSS 126?, where weakest?
+    head = text[:text.index("## Vehicle and design")]
+    assert "model-error cases" in head and "FMVSS 126: two-track mu 1 " in head and "Weakest: case" in head
+    _browser_checks(exe, out / "report.html", tmp_path)
 
 
 def test_sweep_runs_on_the_multibody_car():

@@ -270,6 +270,25 @@ def test_a2l_parses_and_its_addresses_update_from_the_elf(design_dir, tmp_path):
     n_objects = len(doc["calibration"]) + 1 + len(ROWS)
     assert text.count("/begin CHARACTERISTIC") + text.count("/begin AXIS_PTS") == n_objects
     assert " 0x0 " not in text  # every object got its address
+    # the MEASUREMENT objects (every output, the watched supervisor state) sit where the ELF's symbol
+    # table puts the harness's evstab_out / evstab_st plus the entry's offset (8 bytes per float64)
+    import re
+    from toolkit.firmware.asam import MEASURED_STATE, measurements
+    from toolkit.firmware.export import ecu_from_design
+    from toolkit.firmware.ecu import OUTPUT_NAMES
+    nm = shutil.which("nm")
+    if nm is None:
+        pytest.skip("no nm (binutils)")
+    sym = {line.split()[-1]: int(line.split()[0], 16) for line in _run([nm, str(tmp_path / "ecu")]).stdout.splitlines()
+           if len(line.split()) == 3}
+    got = dict(re.findall(r"/begin MEASUREMENT (\w+) .*?ECU_ADDRESS (0x[0-9A-Fa-f]+)", text, flags=re.S))
+    ecu, _ = ecu_from_design(design_dir)
+    meas = measurements(ecu)
+    assert len(got) == len(meas) == len(OUTPUT_NAMES) + len(MEASURED_STATE)
+    for i, name in enumerate(OUTPUT_NAMES):
+        assert int(got[f"out_{name}"], 16) == sym["evstab_out"] + 8 * i
+    for m in meas[len(OUTPUT_NAMES):]:
+        assert int(got[m["name"]], 16) == sym["evstab_st"] + 8 * m["index"]
 
 
 def test_a2l_and_c_name_the_same_objects(design_dir):

@@ -158,6 +158,96 @@ def test_mutated_vehicle_files(tmp_path, capsys, data):
     if not log.exists():
         log.write_text(VALID)
     _check_command(tmp_path, log, str(vehicle), capsys)
+    # the same file through the simulator (bicycle plant, 2 s): 0 with a complete log, or 2 with one
+    # message naming the file and nothing written
+    sim = tmp_path / "sim.csv"
+    if sim.exists():
+        sim.unlink()
+    rc = main(["simulate", "--vehicle", str(vehicle), "--plant", "bicycle", "--maneuver", "step-steer",
+               "--speed", "60", "--out", str(sim)])
+    err = capsys.readouterr().err
+    if rc == 2:
+        assert not sim.exists() and err.count("\n") == 1 and "error:" in err, err
+    else:
+        assert rc == 0 and len(read_log_csv(sim)) > 1000
+
+
+NUMBERS = ["0", "-1", "1e308", "nan", "inf", "abc", "", "1,5", "0x10"]
+ARGS = {
+    "simulate": {"--vehicle": ["compact-ev", "micro-ev", "no-such-car", "/dev/null", ""],
+                 "--plant": ["bicycle", "xyz", "commonroad-mb:9", "two-track:3", ""],
+                 "--maneuver": ["step-steer", "sine-lane-change", "iso3888-1", "warp", ""],
+                 "--speed": ["60", "20", "301", "800", "-5"] + NUMBERS,
+                 "--amplitude": ["2", "-3", "90", "1e6"] + NUMBERS, "--mu": ["0.5", "1.0", "-0.2", "5"] + NUMBERS,
+                 "--controller": ["two-dof", "none", "bogus"], "--estimator": ["dakf", "kf", "bogus"],
+                 "--dt": ["1e-3", "0", "-1", "abc", "nan"], "--gps-outage": ["2:4", "4:2", "x:y", "-1:1", "1"],
+                 "--seed": ["0", "7", "-3", "1.5", "abc"], "--design": ["/nonexistent", ""]},
+    "estimate": {"--vehicle": ["compact-ev", "no-such-car", ""], "--method": ["dakf", "kf-bias", "bogus"],
+                 "--gps-latency": ["0", "0.1", "-1", "10"] + NUMBERS, "--channel-map": ["/nonexistent.toml"],
+                 "--design": ["/nonexistent"]},
+    "export": {"--format": ["c", "json", "bogus"], "--precision": ["float32", "float16"]},
+    "report": {},
+    "score-swd": {"--vehicle": ["compact-ev", "micro-ev", "nope"]},
+    "vehicles": {},
+    "convert": {"--nmea": ["/nonexistent.nmea"], "--imu": ["/nonexistent.csv"], "--time-offset": ["0", "5"] + NUMBERS,
+                "--channel-map": ["/nonexistent.toml"]},
+}
+"""Per command, options and values to draw from: valid ones, out-of-range numbers, unit mistakes
+(800 km/h), garbage, options that do not fit together. The plant is the bicycle (or refused), so
+that a valid draw runs in a fraction of a second."""
+REQUIRED = {"simulate": ("--vehicle", "--maneuver", "--speed"), "estimate": ("--vehicle",),
+            "score-swd": ("--vehicle",)}
+N_ARGS = 150
+
+
+@settings(max_examples=N_ARGS, **SETTINGS)
+@given(data=st.data())
+def test_fuzzed_command_lines(tmp_path, capsys, data):
+    """Random command lines: status 0 with an output, or 2 with an error message and nothing written."""
+    import sys
+    log = tmp_path / "log.csv"
+    log.write_text(VALID)
+    out = tmp_path / "out.csv"
+    if out.exists():  # tmp_path is shared by the examples of one test
+        out.unlink() if out.is_file() else __import__("shutil").rmtree(out)
+    cmd = data.draw(st.sampled_from(sorted(ARGS) + ["nonsense"]))
+    argv = [cmd]
+    if cmd in ("estimate", "score-swd", "convert"):
+        argv.append(str(log) if data.draw(st.integers(0, 9)) < 7 else
+                    data.draw(st.sampled_from([str(tmp_path / "missing.csv"), "-", ""])))
+    elif cmd in ("export", "report"):
+        argv.append(data.draw(st.sampled_from([str(tmp_path), str(tmp_path / "missing"), ""])))
+    for opt, values in ARGS.get(cmd, {}).items():
+        # the options a command needs are there most of the time, the others now and then; most values
+        # are the valid first entry, so that whole valid command lines occur too
+        if data.draw(st.integers(0, 9)) < (9 if opt in REQUIRED.get(cmd, ()) else 3):
+            argv += [opt, values[0] if data.draw(st.integers(0, 9)) < 7 else data.draw(st.sampled_from(values))]
+    if data.draw(st.integers(0, 9)) > 0:
+        argv += ["--out", str(out)]
+    if data.draw(st.integers(0, 9)) == 0:
+        argv.insert(data.draw(st.integers(1, len(argv))), data.draw(st.sampled_from(["--bogus", "-x", "--", "%s"])))
+    try:
+        rc = main(argv)
+    except SystemExit as e:  # argparse: 2 for a bad command line, 0 for --help
+        rc = e.code
+    cap = capsys.readouterr()
+    assert rc in (0, 2), (argv, rc, cap.err[-500:])
+    assert "Traceback" not in cap.err, (argv, cap.err[-2000:])
+    if rc == 2:
+        assert "error" in cap.err and not out.exists(), (argv, cap.err[-500:])
+    OUTCOMES_ARGS[rc] = OUTCOMES_ARGS.get(rc, 0) + 1
+    OUTCOMES_ARGS[(cmd, rc)] = OUTCOMES_ARGS.get((cmd, rc), 0) + 1
+    sys.stdout.flush()
+
+
+OUTCOMES_ARGS: dict = {}
+
+
+def test_the_command_line_fuzz_ran_both_ways():
+    if not OUTCOMES_ARGS:  # run alone (-k): nothing to count
+        return
+    print(OUTCOMES_ARGS)
+    assert OUTCOMES_ARGS.get(0, 0) > 0 and OUTCOMES_ARGS.get(2, 0) > 50, OUTCOMES_ARGS
 
 
 def test_the_fuzz_ran_a_thousand_files_both_ways():
@@ -168,7 +258,9 @@ def test_the_fuzz_ran_a_thousand_files_both_ways():
     assert sum(OUTCOMES.values()) >= 1000 and OUTCOMES[0] > 0 and OUTCOMES[2] > 0, OUTCOMES
 
 
-def test_a_vehicle_that_makes_the_filter_diverge_is_refused(tmp_path, capsys):
+def test_a_vehicle_that_would_make_the_filter_diverge_is_refused(tmp_path, capsys):
+    # a yaw inertia of 1e-30 kg m^2 (once: a filter that diverged on the log) is refused by the
+    # parameter check before anything runs: dynamic index I_z / (m l_f l_r) = 4e-34
     vehicle = tmp_path / "feather.toml"
     vehicle.write_text(BUNDLED.replace("yaw_inertia = 2350.0", "yaw_inertia = 1e-30"))
     assert tomllib.loads(vehicle.read_text())["vehicle"]["yaw_inertia"] == 1e-30
@@ -177,5 +269,14 @@ def test_a_vehicle_that_makes_the_filter_diverge_is_refused(tmp_path, capsys):
     out = tmp_path / "est.csv"
     assert main(["estimate", str(log), "--vehicle", str(vehicle), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "log.csv: row" in err and "diverged" in err and not out.exists()
+    assert "'yaw_inertia' = 1e-30 kg m^2 gives a dynamic index" in err and not out.exists()
     assert "compact-ev" in bundled_vehicles()
+
+
+def test_estimates_that_stop_being_numbers_are_refused_naming_the_row():
+    import pytest
+    from plants.errors import EvstabError
+    from toolkit.cli import _require_finite
+    t = np.arange(5) * 1e-3
+    with pytest.raises(EvstabError, match=r"log.csv: row 5 \(t = 0.003 s\): the beta estimate is not finite"):
+        _require_finite("log.csv", t, {"beta": np.array([0.0, 0.1, 0.2, np.nan, np.inf])})

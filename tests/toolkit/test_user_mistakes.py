@@ -23,6 +23,9 @@ P = load_vehicle("compact-ev")
     (dict(lf=0.3, lr=0.4), r"wheelbase lf \+ lr = 0.3 \+ 0.4 = 0.7 m is outside \[1.0, 6.0\] m"),
     (dict(wheel_radius=0.8), r"'wheel_radius' = 0.8 m is outside \[0.15, 0.6\] m"),
     (dict(steering_ratio=3.0), r"'steering_ratio' = 3.0 is outside \[5.0, 30.0\]"),
+    # 2350 / (1550 * 1.17 * 1.43) = 0.906; the inertia in kg m^2 typed as t m^2 gives 0.000906
+    (dict(yaw_inertia=2.35), r"'yaw_inertia' = 2.35 kg m\^2 gives a dynamic index I_z / \(m l_f l_r\) = 0.000906"),
+    (dict(mass=1.55, sprung_mass=1.2), r"'mass' = 1.55 kg is below 50 kg"),
 ])
 def test_physically_impossible_parameters_are_refused_naming_field_and_bound(change, message):
     with pytest.raises(ParameterError, match=message):

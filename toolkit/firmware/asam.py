@@ -3,7 +3,8 @@
 Both are written from the gain-set document (:mod:`toolkit.firmware.gains`), so
 they carry its values and the C symbol names of :mod:`toolkit.firmware.csource`.
 
-A2L: one ``CHARACTERISTIC`` ``VALUE`` per calibration scalar, one ``AXIS_PTS`` for
+A2L: one ``MEASUREMENT`` per ECU output and per watched state entry (:func:`measurements`), one
+``CHARACTERISTIC`` ``VALUE`` per calibration scalar, one ``AXIS_PTS`` for
 the schedule's inverse-speed axis and one ``CHARACTERISTIC`` ``CURVE`` per schedule
 row referring to it (``COM_AXIS``), each with a ``COMPU_METHOD`` that carries the
 unit, limits and ``SYMBOL_LINK`` to the C symbol. Addresses are ``0x0``: the ECU
@@ -34,12 +35,43 @@ def _unit_method(unit: str) -> str:
     return "CM_" + c_identifier(unit.replace("/", "_per_").replace("^", "").replace(" ", "_")).upper()
 
 
-def a2l(doc: dict, precision: str) -> str:
-    """The A2L text for gain-set ``doc`` with calibration data stored as ``precision``."""
-    dtype, _ = _DATATYPE[precision]
+MEASURED_STATE = ("supervisor.active", "supervisor.blend", "supervisor.steer_correction", "supervisor.mu_est",
+                  "supervisor.slip_authority", "supervisor.slip_lag", "supervisor.ay_demand")
+"""ECU state entries (besides the outputs) a calibration engineer watches: the supervision's
+activation, authority, steer correction, friction estimate, slip control."""
+_STATE_UNITS = {"steer_correction": "rad", "ay_demand": "m/s^2"}
+
+
+def measurements(d) -> list[dict]:
+    """MEASUREMENT objects: every ECU output (``evstab_out.<name>``) and the state entries of
+    :data:`MEASURED_STATE` (``evstab_st`` plus the entry's byte offset); unit, description, range."""
+    from controllers import supervisor as sup_mod
+    from controllers import two_dof as ctl_mod
+    from .ecu import OUTPUTS
+    out = [{"name": f"out_{n}", "symbol": f"evstab_out.{n}", "offset": 0, "unit": u, "description": desc}
+           for n, u, desc in OUTPUTS]
+    lay = d.layout
+    names = {f"law.{k}": lay["controller"] + i for i, k in enumerate(ctl_mod.STATE)}
+    names.update({f"supervisor.{k}": lay["supervisor"] + i for i, k in enumerate(sup_mod.STATE)})
+    for key in MEASURED_STATE:
+        short = key.split(".", 1)[1]
+        out.append({"name": f"state_{short}", "symbol": "evstab_st", "index": names[key],
+                    "unit": _STATE_UNITS.get(short, "-"), "description": f"ECU state {key} (entry {names[key]})"})
+    return out
+
+
+def a2l(doc: dict, precision: str, d=None) -> str:
+    """The A2L text for gain-set ``doc`` with calibration data stored as ``precision``; with the
+    :class:`~toolkit.firmware.ecu.EcuDesign` ``d``, also the MEASUREMENT objects of
+    :func:`measurements` (addresses filled by the ECU project's update step, like the characteristics')."""
+    dtype, size = _DATATYPE[precision]
+    meas = measurements(d) if d is not None else []
+    for m in meas:
+        if "index" in m:
+            m["offset"] = size * m["index"]
     sched = doc["schedule"]
     units = sorted({c["unit"] for c in doc["calibration"]} | {sched["axis"]["unit"]} |
-                   {r["unit"] for r in sched["rows"]})
+                   {r["unit"] for r in sched["rows"]} | {m["unit"] for m in meas})
     n = len(sched["axis"]["values"])
     lines = [
         "ASAP2_VERSION 1 71",
@@ -91,6 +123,12 @@ def a2l(doc: dict, precision: str) -> str:
                   "      /end AXIS_DESCR",
                   f"      SYMBOL_LINK {_q(r['symbol'])} 0",
                   "    /end CHARACTERISTIC"]
+    for m in meas:
+        lines += [f"    /begin MEASUREMENT {m['name']} {_q(m['description'])}",
+                  f"      {dtype} {_unit_method(m['unit'])} 0 0 -1e12 1e12",
+                  "      ECU_ADDRESS 0x0",
+                  f"      SYMBOL_LINK {_q(m['symbol'])} {m['offset']}",
+                  "    /end MEASUREMENT"]
     lines += ["  /end MODULE", "/end PROJECT", ""]
     return "\n".join(lines)
 

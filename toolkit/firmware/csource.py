@@ -212,7 +212,7 @@ def harness() -> str:
     in_names = [name for name, _, _, _ in INPUTS]
     assign = "\n".join(f"        in.{name} = {'(int)' if _kind(name) in ('int', 'flag') else '(evstab_real)'}v[{i}];"
                        for i, name in enumerate(in_names))
-    outs = ", ".join(f"(double)out.{name}" for name, _, _ in OUTPUTS)
+    outs = ", ".join(f"(double)evstab_out.{name}" for name, _, _ in OUTPUTS)
     fmt = ",".join(["%.17g"] * len(OUTPUTS))
     return f"""/* evstab_replay.c: run evstab_step over an input CSV (columns {', '.join(in_names)}),
  * print the outputs ({', '.join(n for n, _, _ in OUTPUTS)}).
@@ -247,20 +247,24 @@ static int parse_line(char *line, double *v)
     return 1;
 }}
 
+/* The ECU's state and outputs at file scope, under the names the A2L's MEASUREMENT objects link
+ * to (SYMBOL_LINK "evstab_st", "evstab_out.<output>"): an ECU project declares them the same way
+ * for XCP measurement; the address update step finds them in its ELF. */
+evstab_state_t evstab_st;
+evstab_output_t evstab_out;
+
 int main(int argc, char **argv)
 {{
     static char line[4096];
     double v[N_IN];
-    evstab_state_t s;
     evstab_input_t in;
-    evstab_output_t out;
     long row = 0;
     FILE *f = argc > 1 ? fopen(argv[1], "r") : stdin;
     if (f == NULL) {{
         fprintf(stderr, "evstab_replay: cannot open %s\\n", argv[1]);
         return 2;
     }}
-    evstab_init(&s);
+    evstab_init(&evstab_st);
     memset(&in, 0, sizeof in);
     printf("{','.join(n for n, _, _ in OUTPUTS)}\\n");
     while (fgets(line, sizeof line, f) != NULL) {{
@@ -273,7 +277,7 @@ int main(int argc, char **argv)
             return 2;
         }}
 {assign}
-        evstab_step(&s, &in, &out);
+        evstab_step(&evstab_st, &in, &evstab_out);
         printf("{fmt}\\n", {outs});
     }}
     if (f != stdin) {{

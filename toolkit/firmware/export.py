@@ -68,7 +68,7 @@ def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
     if "json" in formats:
         out["evstab_gains.json"] = gains.dumps(doc).encode()
     if "a2l" in formats:
-        out["evstab_firmware.a2l"] = asam.a2l(doc, precision).encode()
+        out["evstab_firmware.a2l"] = asam.a2l(doc, precision, d).encode()
     if "cdfx" in formats:
         out["evstab_firmware.cdfx"] = asam.cdfx(doc)
     return out
