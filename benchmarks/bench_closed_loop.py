@@ -19,12 +19,12 @@ import time
 import control
 import numpy as np
 
-from plants import TRUTH, get_plant, load_vehicle
-from plants.backend import NUMPY
-from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import step_steer
-from plants.sensors import SensorConfig
-from toolkit import closed_loop as cl
+from evstab.plants import TRUTH, get_plant, load_vehicle
+from evstab.plants.backend import NUMPY
+from evstab.plants.disturbances import Disturbances, default_wind
+from evstab.plants.maneuvers import step_steer
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit import closed_loop as cl
 
 
 def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):

@@ -25,16 +25,16 @@ from pathlib import Path
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from plants import load_vehicle
-from plants.backend import NUMPY
-from plants.maneuvers import sine_lane_change
-from plants.sensors import SensorConfig
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.kalman import discretize, initial_state
-from toolkit.estimation.runner import compiled_filter, inputs_from_columns
-from toolkit.estimation.spec import continuous_model, gyro_row
-from toolkit.logio import write_log_table
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.backend import NUMPY
+from evstab.plants.maneuvers import sine_lane_change
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.kalman import discretize, initial_state
+from evstab.toolkit.estimation.runner import compiled_filter, inputs_from_columns
+from evstab.toolkit.estimation.spec import continuous_model, gyro_row
+from evstab.toolkit.logio import write_log_table
+from evstab.toolkit.simulator import simulate
 
 
 def filterpy_matrices(d, U):
@@ -137,7 +137,7 @@ def main(argv=None):
         src, dst = Path(tmp) / "log.csv", Path(tmp) / "est.csv"
         write_log_table(src, big)
         size = src.stat().st_size / 1e6
-        cmd = [sys.executable, "-m", "toolkit.cli", "estimate", str(src), "--vehicle", "micro-ev", "--out", str(dst)]
+        cmd = [sys.executable, "-m", "evstab.toolkit.cli", "estimate", str(src), "--vehicle", "micro-ev", "--out", str(dst)]
         subprocess.run(cmd, check=True, capture_output=True)  # warm the compiled cache
         t0 = time.perf_counter()
         res = subprocess.run(cmd, check=True, capture_output=True, text=True)

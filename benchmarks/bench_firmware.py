@@ -28,18 +28,18 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from plants.maneuvers import make_maneuver
-from plants.sensors import SensorConfig
-from toolkit.compiled import compiler
-from toolkit.design_job import basic_design_document
-from toolkit.estimation import design_filter
-from toolkit.firmware.csource import write_inputs_csv
-from toolkit.firmware.ecu import INPUTS, OUTPUT_NAMES
-from toolkit.firmware.export import ecu_from_design, export_design
-from toolkit.firmware.replay import ecu_inputs, ecu_program
-from toolkit.simulator import simulate
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import make_maneuver
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.compiled import compiler
+from evstab.toolkit.design_job import basic_design_document
+from evstab.toolkit.estimation import design_filter
+from evstab.toolkit.firmware.csource import write_inputs_csv
+from evstab.toolkit.firmware.ecu import INPUTS, OUTPUT_NAMES
+from evstab.toolkit.firmware.export import ecu_from_design, export_design
+from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
+from evstab.toolkit.simulator import simulate
 
 def _timer_source() -> str:
     """The timing harness, its input rows read in :data:`toolkit.firmware.ecu.INPUTS` order."""

@@ -24,8 +24,8 @@ import time
 import control
 import numpy as np
 
-from plants import COMMANDS, DISTURBANCES, PLANTS, default_disturbance, load_vehicle
-from toolkit.compiled import CompiledPlant
+from evstab.plants import COMMANDS, DISTURBANCES, PLANTS, default_disturbance, load_vehicle
+from evstab.toolkit.compiled import CompiledPlant
 
 
 def best_of(fn, repeat):
@@ -84,8 +84,8 @@ def multibody(args, cmd, t, n) -> None:
     """commonroad-mb:1 compiled against the package's Python function stepped by RK4 in Python."""
     import vehiclemodels.utils.tire_model as tm
     from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
-    from plants import commonroad_mb as mb, get_plant
-    from plants.backend import NUMPY
+    from evstab.plants import commonroad_mb as mb, get_plant
+    from evstab.plants.backend import NUMPY
     model = get_plant("commonroad-mb:1")
     p = load_vehicle("commonroad-1")
     v = cmd[2, 0]

@@ -28,12 +28,12 @@ import time
 
 import numpy as np
 
-from plants import TRUTH, load_vehicle
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import Maneuver
-from plants.sensors import SensorConfig
-from toolkit.closed_loop import CHUNK, EXTRA, SLOTS, latch_schedule, loop_spec, program
-from toolkit.estimation import kalman
+from evstab.plants import TRUTH, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import Maneuver
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.closed_loop import CHUNK, EXTRA, SLOTS, latch_schedule, loop_spec, program
+from evstab.toolkit.estimation import kalman
 
 DT = 1e-3
 BETA_BOUND = 5.0

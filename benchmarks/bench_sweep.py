@@ -21,11 +21,11 @@ import time
 
 import numpy as np
 
-from plants import TRUTH, load_vehicle
-from plants.disturbances import Disturbances, Friction
-from toolkit import sweep as sw
-from toolkit.closed_loop import EXTRA, program
-from toolkit.simulator import simulate
+from evstab.plants import TRUTH, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.toolkit import sweep as sw
+from evstab.toolkit.closed_loop import EXTRA, program
+from evstab.toolkit.simulator import simulate
 
 
 def random_cases(n: int, seed: int = 11) -> list[sw.Case]:

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import VehicleParams
-from plants.backend import NUMPY, unpack
+from evstab.plants import VehicleParams
+from evstab.plants.backend import NUMPY, unpack
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ pass-through, :class:`toolkit.loop_ecu.LoopEcu` kind ``none``.)
 
 from __future__ import annotations
 
-from plants.backend import NUMPY, unpack
+from evstab.plants.backend import NUMPY, unpack
 
 from .two_dof import SIGNALS, TwoDofDesign, reference
 

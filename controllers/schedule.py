@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import VehicleParams
-from plants.backend import NUMPY
-from plants.bicycle import lateral_coefficients, steady_state_gains
-from plants.errors import ModelError
+from evstab.plants import VehicleParams
+from evstab.plants.backend import NUMPY
+from evstab.plants.bicycle import lateral_coefficients, steady_state_gains
+from evstab.plants.errors import ModelError
 
 ROWS = ("a11", "a12", "a21", "a22", "b11", "b21", "b22", "k_beta_ss", "k_gamma_ss")
 UNITS = ("1/s", "-", "1/s^2", "1/s", "1/s", "1/s^2", "1/(kg m^2)", "-", "1/s")

@@ -35,8 +35,8 @@ the model-following law of seed 003 acts only when the car needs it.
 
 from __future__ import annotations
 
-from plants import G
-from plants.backend import NUMPY
+from evstab.plants import G
+from evstab.plants.backend import NUMPY
 
 STATE = ("active", "hold", "blend", "steer_correction", "mu_est", "steer_saturated", "yaw_moment_saturated",
          "ay_demand", "slip_authority", "slip_lag")

@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import G, VehicleParams
-from plants.backend import NUMPY, unpack
-from plants.bicycle import lateral_coefficients, lateral_matrices
+from evstab.plants import G, VehicleParams
+from evstab.plants.backend import NUMPY, unpack
+from evstab.plants.bicycle import lateral_coefficients, lateral_matrices
 
 
 

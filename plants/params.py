@@ -313,7 +313,7 @@ def parse_vehicle_toml(text: str, origin: str) -> VehicleParams:
 def bundled_vehicles() -> dict[str, str]:
     """Bundled parameter-set names -> their [meta] name."""
     out = {}
-    for entry in sorted(resources.files("plants").joinpath("data").iterdir(), key=lambda e: e.name):
+    for entry in sorted(resources.files("evstab.plants").joinpath("data").iterdir(), key=lambda e: e.name):
         if entry.name.endswith(".toml"):
             out[entry.name[:-5]] = tomllib.loads(entry.read_text())["meta"]["name"]
     return out
@@ -322,7 +322,7 @@ def bundled_vehicles() -> dict[str, str]:
 def load_vehicle(name_or_path: str | Path) -> VehicleParams:
     """Load a bundled vehicle by name (``micro-ev``, ``sedan-000``, ``compact-ev``) or a TOML file."""
     key = str(name_or_path)
-    data = resources.files("plants").joinpath("data")
+    data = resources.files("evstab.plants").joinpath("data")
     if not key.endswith(".toml") and data.joinpath(key + ".toml").is_file():
         return parse_vehicle_toml(data.joinpath(key + ".toml").read_text(), f"bundled vehicle '{key}'")
     path = Path(key)

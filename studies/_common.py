@@ -6,7 +6,7 @@ import csv
 import io
 from pathlib import Path
 
-from toolkit.logio import atomic_write
+from evstab.toolkit.logio import atomic_write
 
 
 def out_dir(path) -> Path:
@@ -40,7 +40,7 @@ def save_figure(fig, path: Path) -> None:
 
 
 def cli(main) -> None:
-    """``python -m studies.NAME OUT_DIR [--quick]``: run a study and print its rows."""
+    """``python -m evstab.studies.NAME OUT_DIR [--quick]``: run a study and print its rows."""
     import sys
     args = [a for a in sys.argv[1:] if a != "--quick"]
     for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
@@ -55,7 +55,7 @@ def seed_003_design(p):
     the friction estimate still runs,
     the paper's friction limit uses it)."""
     import numpy as np
-    from controllers.two_dof import TwoDofDesign
+    from evstab.controllers.two_dof import TwoDofDesign
     return TwoDofDesign(p.as_nominal(), always_active=True, steer_authority=np.deg2rad(35.0), guard_share=1e6,
                         rear_grip_share=1e6, rollover_share=1e6, ay_headroom=1e6, slip_max=1e6,
                         phase_beta=1e9)

@@ -7,19 +7,19 @@ estimator, and the 2-DOF controller fed with true states. Writes ``fig7.csv``/
 ``fig7.md`` (RMS tracking errors of sideslip and yaw rate against the reference
 model, peak commands) and ``fig7.png``.
 
-Run: ``python -m studies.control_fig7 OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.control_fig7 OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import step_steer
-from studies._common import cli, out_dir, save_figure, write_table
-from studies._common import seed_003_design
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, default_wind
+from evstab.plants.maneuvers import step_steer
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.studies._common import seed_003_design
+from evstab.toolkit.simulator import simulate
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 

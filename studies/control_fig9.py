@@ -7,18 +7,18 @@ it does not tabulate). Micro EV on the two-track plant, true 7000 vs nominal
 10000 N/rad per tire. Writes ``fig9.csv``/``fig9.md`` (RMS tracking errors
 against the reference model, with and without control) and ``fig9.png``.
 
-Run: ``python -m studies.control_fig9 OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.control_fig9 OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.maneuvers import Maneuver
-from studies._common import cli, out_dir, save_figure, write_table
-from studies._common import seed_003_design
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import Maneuver
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.studies._common import seed_003_design
+from evstab.toolkit.simulator import simulate
 
 
 def cornering(speed: float, peak: float, start: float = 1.0, ramp: float = 1.0, hold: float = 3.0,

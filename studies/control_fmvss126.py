@@ -7,15 +7,15 @@ A from the slowly increasing steer on each road; sine with dwell at 80 km/h from
 max(6.5 A, 270 deg), both directions (quick mode: the first two amplitudes at or above 5 A).
 Writes ``fmvss126_<controller>_mu<mu>.csv`` per controller and road and ``fmvss126_summary.md``.
 
-Run: ``python -m studies.control_fmvss126 OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.control_fmvss126 OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from studies._common import cli, out_dir, seed_003_design, write_table
-from toolkit.fmvss126 import find_a, run_series
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.studies._common import cli, out_dir, seed_003_design, write_table
+from evstab.toolkit.fmvss126 import find_a, run_series
 
 MUS = (1.0, 0.6)
 

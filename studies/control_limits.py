@@ -12,7 +12,7 @@ exported; ``dakf`` in the loop, the ECU not told the friction.
 
 Writes ``limits_summary.md``/``.csv`` and ``straight_summary.md``/``.csv``.
 
-Run: ``python -m studies.control_limits OUT_DIR [--design DIR]``
+Run: ``python -m evstab.studies.control_limits OUT_DIR [--design DIR]``
 """
 
 from __future__ import annotations
@@ -21,19 +21,19 @@ import sys
 
 import numpy as np
 
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from plants.maneuvers import step_steer
-from studies._common import out_dir, seed_003_design, write_table
-from toolkit import limits as lm
-from toolkit.simulator import simulate
-from toolkit.sweep import SweepConfig
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import step_steer
+from evstab.studies._common import out_dir, seed_003_design, write_table
+from evstab.toolkit import limits as lm
+from evstab.toolkit.simulator import simulate
+from evstab.toolkit.sweep import SweepConfig
 
 
 def controllers(p, design_dir=None) -> list[tuple[str, object]]:
     out = [("no control", None), ("2-DOF seed 003", seed_003_design(p)), ("2-DOF default", TwoDofDesign(p.as_nominal()))]
     if design_dir is not None:
-        from toolkit.firmware.export import ecu_from_design
+        from evstab.toolkit.firmware.export import ecu_from_design
         out.append(("design folder", ecu_from_design(design_dir)[0]))
     return out
 

@@ -7,7 +7,7 @@ ECU (the step ``evstab export`` prints as C) in the loop through the FMVSS 126 s
 on mu 1.0, 0.6 and 0.5, real rear-wheel torques, the friction not given to the ECU. Beside it
 the uncontrolled car. Writes ``mb_fmvss126_summary.md``/``.csv`` and the design folders.
 
-Run: ``python -m studies.control_mb_fmvss126 OUT_DIR [--quick]`` (quick: the mu 1.0 and 0.6
+Run: ``python -m evstab.studies.control_mb_fmvss126 OUT_DIR [--quick]`` (quick: the mu 1.0 and 0.6
 series only, both cars; about 5 minutes on 2 cores either way, most of it the two design jobs).
 """
 
@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from plants import load_vehicle
-from studies._common import cli, out_dir, write_table
-from toolkit.design_job import run_design
-from toolkit.firmware.export import ecu_from_design
-from toolkit.fmvss126 import find_a, run_series
-from toolkit.logio import atomic_write
-from toolkit.nominal import to_toml
+from evstab.plants import load_vehicle
+from evstab.studies._common import cli, out_dir, write_table
+from evstab.toolkit.design_job import run_design
+from evstab.toolkit.firmware.export import ecu_from_design
+from evstab.toolkit.fmvss126 import find_a, run_series
+from evstab.toolkit.logio import atomic_write
+from evstab.toolkit.nominal import to_toml
 
 STIFFNESS_ERROR = 1.4
 CARS = (1, 3)

@@ -16,22 +16,22 @@
 
 Writes ``dlc.csv/.md``, ``timesync.csv/.md`` and ``timesync.png``.
 
-Run: ``python -m studies.estimation_000 OUT_DIR``
+Run: ``python -m evstab.studies.estimation_000 OUT_DIR``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import dlc_000
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit import timesync
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.two_stage import sideslip_at
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import dlc_000
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit import timesync
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.two_stage import sideslip_at
+from evstab.toolkit.simulator import simulate
 
 SPEED = 120 / 3.6
 LEAD_IN = 600.0

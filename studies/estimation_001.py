@@ -19,7 +19,7 @@
 
 Writes ``turns.csv/.md``, ``stiffness.csv/.md``, ``table_i.csv/.md`` and ``turns.png``.
 
-Run: ``python -m studies.estimation_001 OUT_DIR``
+Run: ``python -m evstab.studies.estimation_001 OUT_DIR``
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ import dataclasses
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.maneuvers import two_half_turns
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.diagnostics import nis_consistency, whiteness
-from toolkit.estimation.identify import cornering_stiffness
-from toolkit.estimation.rate_table import table_i
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import two_half_turns
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.diagnostics import nis_consistency, whiteness
+from evstab.toolkit.estimation.identify import cornering_stiffness
+from evstab.toolkit.estimation.rate_table import table_i
 
 SPEED, RADIUS, LEAD_IN = 16.0, 50.0, 300.0
 
@@ -46,7 +46,7 @@ def drive(p, plant: str, scale_error: float, seed: int):
 
 
 def simulate_log(p, plant, man, sensors, seed):
-    from toolkit.simulator import simulate
+    from evstab.toolkit.simulator import simulate
     return simulate(p, plant, man, sensors=sensors, seed=seed).log_columns()
 
 

@@ -11,22 +11,22 @@ force from ``v r`` alone, ``v r`` plus the estimated bank's gravity, and the acc
 
 Writes ``dual_antenna.csv/.md`` and ``stiffness_bank.csv/.md``.
 
-Run: ``python -m studies.estimation_002 OUT_DIR``
+Run: ``python -m evstab.studies.estimation_002 OUT_DIR``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances
-from plants.maneuvers import two_half_turns
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, write_table
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.dual_antenna import bank_estimate
-from toolkit.estimation.identify import cornering_stiffness
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances
+from evstab.plants.maneuvers import two_half_turns
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, write_table
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.dual_antenna import bank_estimate
+from evstab.toolkit.estimation.identify import cornering_stiffness
+from evstab.toolkit.simulator import simulate
 
 SPEED, RADIUS, LEAD_IN = 16.0, 50.0, 300.0
 BANKS_DEG = (0.0, -5.0)

@@ -10,20 +10,20 @@ the bicycle-with-roll and the two-track plant. RMS errors from t = 1 s.
 
 Writes ``double_layer.csv/.md`` and ``double_layer.png`` (the step steer on the two-track).
 
-Run: ``python -m studies.estimation_004 OUT_DIR``
+Run: ``python -m evstab.studies.estimation_004 OUT_DIR``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.maneuvers import make_maneuver, steer_for_lateral_acceleration, step_steer
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.double_layer import layer2, roll_kf, roll_model_error, velocity_kf
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import make_maneuver, steer_for_lateral_acceleration, step_steer
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.double_layer import layer2, roll_kf, roll_model_error, velocity_kf
+from evstab.toolkit.simulator import simulate
 
 SPEED = 25 / 3.6
 

@@ -6,20 +6,20 @@ driving before the figure's time zero (as they would in a car); errors are taken
 over the figure's 10 s. Writes ``fig6.csv``/``fig6.md`` (RMS and max sideslip
 error per method) and ``fig6.png``.
 
-Run: ``python -m studies.estimation_fig6 OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.estimation_fig6 OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import sine_lane_change
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, default_wind
+from evstab.plants.maneuvers import sine_lane_change
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.simulator import simulate
 
 METHODS = ("lob", "kf", "dakf-paper", "dakf", "amrkf")
 

@@ -5,18 +5,18 @@ Both filters use the same disturbance-accommodating model (evstab's ``dakf``);
 EV, 25 km/h lane change, model error as in seed 003. Writes ``intersample.csv``
 (RMS sideslip error by time since the last GPS fix) and ``intersample.png``.
 
-Run: ``python -m studies.estimation_intersample OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.estimation_intersample OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.maneuvers import sine_lane_change
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import sine_lane_change
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.simulator import simulate
 
 
 def main(out, quick: bool = False) -> list[dict]:

@@ -5,13 +5,13 @@ mu 0.5 (compact EV), lane change 25 km/h with a 2 s outage and two bad fixes
 (micro EV); each with exact, +40 % and -40 % nominal cornering stiffness; gyro bias
 3 mrad/s and 1 % scale error throughout. Writes ``robustness.csv``/``.md``.
 
-Run: ``python -m studies.estimation_robustness OUT_DIR [--quick]``
+Run: ``python -m evstab.studies.estimation_robustness OUT_DIR [--quick]``
 """
 
 from __future__ import annotations
 
-from studies._common import cli, out_dir, write_table
-from toolkit.estimation.evaluate import robustness_table
+from evstab.studies._common import cli, out_dir, write_table
+from evstab.toolkit.estimation.evaluate import robustness_table
 
 
 def main(out, quick: bool = False) -> list[dict]:

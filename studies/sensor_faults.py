@@ -16,7 +16,7 @@ t = 30 s to the end, screened and unscreened. The gyro bias step also runs with 
 bias CUSUM switched off (``bias_cusum_h = 0``), to show what the alarm buys.
 Writes ``faults.csv``/``.md`` and ``faults.png``.
 
-Run: ``python -m studies.sensor_faults OUT_DIR``
+Run: ``python -m evstab.studies.sensor_faults OUT_DIR``
 """
 
 from __future__ import annotations
@@ -27,15 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from plants import load_vehicle
-from plants.maneuvers import Maneuver, steer_for_lateral_acceleration
-from plants.sensors import SensorConfig
-from studies._common import cli, out_dir, save_figure, write_table
-from toolkit import faults as F
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.monitor import FLAGS
-from toolkit.nmea import merge_onto_imu, read_nmea, write_nmea
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import Maneuver, steer_for_lateral_acceleration
+from evstab.plants.sensors import SensorConfig
+from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.toolkit import faults as F
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.monitor import FLAGS
+from evstab.toolkit.nmea import merge_onto_imu, read_nmea, write_nmea
+from evstab.toolkit.simulator import simulate
 
 T_FAULT = 30.0
 WINDOW = 15.0

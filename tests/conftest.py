@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from plants import load_vehicle
+from evstab.plants import load_vehicle
 
 VEHICLES = ("micro-ev", "sedan-000", "compact-ev")
 
@@ -26,7 +26,7 @@ def rng():
 @pytest.fixture(scope="session")
 def quick_design_dir(tmp_path_factory):
     """``evstab design --quick`` on compact-ev, run once for every test that needs a real design folder."""
-    from toolkit.cli import main
+    from evstab.toolkit.cli import main
     out = tmp_path_factory.mktemp("quick_design")
     assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
     return out

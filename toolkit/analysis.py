@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from controllers.two_dof import TwoDofDesign
-from plants import VehicleParams
-from plants.backend import NUMPY
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import VehicleParams
+from evstab.plants.backend import NUMPY
 
 from .estimation.analysis import measurement_rows, observability, periodic_gains
 from .estimation.kalman import discretize

@@ -12,11 +12,11 @@ import sys
 
 import numpy as np
 
-from plants import PLANT_SPECS, bundled_vehicles, get_plant, is_multibody, load_vehicle
-from plants.disturbances import Disturbances, Friction, default_wind
-from plants.errors import EvstabError
-from plants.maneuvers import MANEUVERS, make_maneuver
-from plants.sensors import SensorConfig
+from evstab.plants import PLANT_SPECS, bundled_vehicles, get_plant, is_multibody, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction, default_wind
+from evstab.plants.errors import EvstabError
+from evstab.plants.maneuvers import MANEUVERS, make_maneuver
+from evstab.plants.sensors import SensorConfig
 
 
 def _outage(text: str) -> tuple[float, float]:
@@ -310,7 +310,7 @@ def cmd_fmvss126(args) -> int:
     from .logio import atomic_write
     from pathlib import Path
 
-    from controllers.two_dof import TwoDofDesign
+    from evstab.controllers.two_dof import TwoDofDesign
 
     p = load_vehicle(args.vehicle)
     if args.design is not None:
@@ -381,6 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .estimation.spec import LOOP_METHODS
 
     ap = argparse.ArgumentParser(prog="evstab", description="Stability-control design for in-wheel-motor EVs.")
+    from evstab import __version__
+    ap.add_argument("--version", action="version", version=f"evstab {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     _add = sub.add_parser
     sub.add_parser = lambda *a, **k: _add(*a, formatter_class=_Help, **k)

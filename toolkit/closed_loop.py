@@ -31,16 +31,16 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-import controllers.supervisor as sup_mod
-import controllers.two_dof as ctl_mod
-from controllers.actuators import ActuatorLimits, actuator_law
-from controllers.baselines import STATE as YAW_PI_STATE
-from controllers.two_dof import TwoDofDesign
-from plants import DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
-from plants.backend import CASADI, NUMPY
-from plants.disturbances import Disturbances, disturbance_profile
-from plants.maneuvers import Maneuver
-from plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
+import evstab.controllers.supervisor as sup_mod
+import evstab.controllers.two_dof as ctl_mod
+from evstab.controllers.actuators import ActuatorLimits, actuator_law
+from evstab.controllers.baselines import STATE as YAW_PI_STATE
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
+from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.disturbances import Disturbances, disturbance_profile
+from evstab.plants.maneuvers import Maneuver
+from evstab.plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
 
 from .compiled import (CFunction, cache_key, compile_library, numeric_fields, param_vector, rk4_step, rk4_substeps,
                        symbolic_view, with_fields)

@@ -28,7 +28,7 @@ import ctypes
 import casadi as ca
 import numpy as np
 
-from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams
+from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams
 
 CODE_VERSION = "3"
 """Bump when generated code changes meaning (invalidates the compiled cache)."""
@@ -395,7 +395,7 @@ class CompiledPlant:
 
 @lru_cache(maxsize=32)
 def _cached(model_name: str, p: VehicleParams, dt: float, compile: bool) -> CompiledPlant:
-    from plants import get_plant
+    from evstab.plants import get_plant
     return CompiledPlant(get_plant(model_name), p, dt, compile=compile)
 
 

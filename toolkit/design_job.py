@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.schedule import SpeedSchedule
-from controllers.two_dof import TwoDofDesign
-from plants import VehicleParams, load_vehicle
-from plants.disturbances import Disturbances, Friction
+from evstab.controllers.schedule import SpeedSchedule
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import VehicleParams, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
 
 from . import sweep as sw
 from .analysis import SPEEDS_KMH, speed_grid
@@ -134,7 +134,7 @@ class LoadedDesign:
 def load_design(path) -> LoadedDesign:
     """Read ``DIR/design.json`` (or the file itself); errors name the file and the field."""
     from .estimation import design_filter
-    from plants.params import VehicleParams as VP
+    from evstab.plants.params import VehicleParams as VP
     path = Path(path)
     f = path / "design.json" if path.is_dir() else path
     if not f.is_file():
@@ -208,7 +208,7 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
             for pt in points:
                 th = prog.theta(**pt.calibration(), mu_assumed=cfg.base_design().mu_max)  # not told the road
                 Y, E = prog.run(U, z0, pv, th)
-                from plants import TRUTH
+                from evstab.plants import TRUTH
                 from .closed_loop import EXTRA
                 t = np.arange(len(U)) * cfg.dt
                 runs[pt.name] = (t, Y[:, TRUTH.index("yaw_rate")], Y[:, TRUTH.index("beta")],
@@ -409,7 +409,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         clock["last"] = now
     out = Path(out)
     if out.exists() and not out.is_dir():
-        from plants.errors import EvstabError
+        from evstab.plants.errors import EvstabError
         raise EvstabError(f"{out}: exists and is not a folder; --out names the design folder to write")
     params = load_vehicle(vehicle)
     cfg = sw.SweepConfig(params, plant=plant)

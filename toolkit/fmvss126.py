@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.signal
 
-from plants import G, VehicleParams
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import ramp_steer, sine_with_dwell
+from evstab.plants import G, VehicleParams
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import ramp_steer, sine_with_dwell
 
 from .simulator import RolloverError, simulate
 
@@ -190,7 +190,7 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
                "controller": controller,
                "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}
     if controller == "two-dof":
-        from controllers.two_dof import TwoDofDesign
+        from evstab.controllers.two_dof import TwoDofDesign
         d = design if design is not None else TwoDofDesign(p.as_nominal())
         d = getattr(d, "controller", d)  # an EcuDesign's controller
         verdict["design"] = {k: getattr(d, k) for k in ("k_beta", "k_gamma", "yaw_priority", "reference_tau",

@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import G, is_multibody
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import make_maneuver, step_steer, steer_for_lateral_acceleration
+from evstab.plants import G, is_multibody
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import make_maneuver, step_steer, steer_for_lateral_acceleration
 
 SPIN_DEG = 10.0
 """Peak sideslip [deg] beyond which a limit run has lost the car."""
@@ -103,7 +103,7 @@ def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None, name
     ``point``: a :class:`toolkit.sweep.DesignPoint` (its gains and noise on ``cfg``'s design), an
     :class:`toolkit.firmware.ecu.EcuDesign` (a design folder's ECU as exported) or a
     :class:`controllers.two_dof.TwoDofDesign` (with the ``dakf`` filter); None: no control."""
-    from controllers.two_dof import TwoDofDesign
+    from evstab.controllers.two_dof import TwoDofDesign
     from .firmware.ecu import EcuDesign
     plant = case.plant or cfg.plant
     p = cfg.nominal

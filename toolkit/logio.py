@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plants.errors import EvstabError
+from evstab.plants.errors import EvstabError
 
 SCHEMA = (
     ("t", "s", True), ("speed", "m/s", True), ("steer", "rad", True), ("yaw_moment", "N m", False),

@@ -10,13 +10,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import controllers.supervisor as sup_mod
-import controllers.two_dof as ctl_mod
-from controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
-from controllers.two_dof import TwoDofDesign
-from plants import VehicleParams
-from plants.backend import NUMPY
-from plants.errors import EvstabError
+import evstab.controllers.supervisor as sup_mod
+import evstab.controllers.two_dof as ctl_mod
+from evstab.controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import VehicleParams
+from evstab.plants.backend import NUMPY
+from evstab.plants.errors import EvstabError
 
 from .estimation import design_filter
 from .estimation import kalman as kal_mod

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plants.errors import EvstabError
+from evstab.plants.errors import EvstabError
 
 KNOT = 1852.0 / 3600.0
 """One knot in m/s."""

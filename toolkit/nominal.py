@@ -38,11 +38,11 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from plants import VehicleParams, commonroad_mb, get_plant
-from plants.bicycle import lateral_matrices
-from plants.errors import ParameterError
-from plants.maneuvers import Maneuver
-from plants.params import G, parse_vehicle_toml
+from evstab.plants import VehicleParams, commonroad_mb, get_plant
+from evstab.plants.bicycle import lateral_matrices
+from evstab.plants.errors import ParameterError
+from evstab.plants.maneuvers import Maneuver
+from evstab.plants.params import G, parse_vehicle_toml
 
 STEERING_RATIO = 16.0
 """Hand-wheel to road-wheel ratio assumed for every set (not in the CommonRoad data)."""
@@ -111,7 +111,7 @@ def small_steer_runs(set_id: int, speeds_kmh=FIT_SPEEDS_KMH) -> list[dict]:
     """The multi-body car's small-steer responses: per speed ``t``, road-wheel ``steer``, ``yaw_rate``,
     ``beta``, ``ay``, ``vx`` (the truth, no sensors)."""
     from .compiled import compiled_plant
-    from plants import COMMANDS, TRUTH, default_disturbance
+    from evstab.plants import COMMANDS, TRUTH, default_disturbance
     from .simulator import steer_rate
     model = get_plant(f"commonroad-mb:{set_id}")
     truth = geometry(set_id, 5e4, 5e4)  # the plant's dynamics are the set's; this gives the geometry

@@ -125,7 +125,7 @@ def param_unit(name: str) -> str:
     import re
     from dataclasses import fields
 
-    from plants.params import VehicleParams
+    from evstab.plants.params import VehicleParams
     doc = next((f.metadata.get("doc", "") for f in fields(VehicleParams) if f.name == name), "")
     m = re.search(r"\[([^\]]+)\]\s*$", doc)
     return m.group(1) if m else "-"

@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, is_multibody, truth_params
-from plants.disturbances import Disturbances, disturbance_profile
-from plants.errors import EvstabError
-from plants.maneuvers import Maneuver
-from plants.paths import PathDriver
-from plants.sensors import SensorConfig, measure
+from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, is_multibody, truth_params
+from evstab.plants.disturbances import Disturbances, disturbance_profile
+from evstab.plants.errors import EvstabError
+from evstab.plants.maneuvers import Maneuver
+from evstab.plants.paths import PathDriver
+from evstab.plants.sensors import SensorConfig, measure
 
 from .compiled import compiled_plant
 from .logio import write_log_csv
@@ -210,7 +210,7 @@ def _log_readings(M: np.ndarray, Y: np.ndarray, W: np.ndarray, sensors: SensorCo
     """Drive-log columns from the readings the ECU was given, and the dual-antenna roll, which the ECU
     does not read, from the truth as :func:`measure` makes it."""
     from .closed_loop import MEAS
-    from plants.sensors import draw_noise, log_columns
+    from evstab.plants.sensors import draw_noise, log_columns
     m = {k: M[:, i] for i, k in enumerate(MEAS)}
     roll = Y[TRUTH.index("roll")] + W[DISTURBANCES.index("bank")]
     return log_columns(m, sensors, roll, draw_noise(sensors, seed, M.shape[0])["gps_roll"])
@@ -230,7 +230,7 @@ def check_rollover(plant: str, roll: np.ndarray, dt: float, maneuver) -> None:
 
 
 def _check_mb_speed(model, vx, dt, maneuver) -> None:
-    from plants.commonroad_mb import MIN_SPEED
+    from evstab.plants.commonroad_mb import MIN_SPEED
     if np.any(vx < MIN_SPEED):
         k = int(np.argmax(vx < MIN_SPEED))
         raise SimulationError(f"{model.name}: speed fell to {vx[k]:.2f} m/s at t = {k * dt:.3f} s ({maneuver.name}); "
@@ -246,5 +246,5 @@ def steer_rate(steer: np.ndarray, dt: float) -> np.ndarray:
 
 
 def _uniform(mu: float):
-    from plants.disturbances import Friction
+    from evstab.plants.disturbances import Friction
     return Friction(mu=mu)

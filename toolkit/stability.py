@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import control
 import numpy as np
 
-from controllers.two_dof import TwoDofDesign
-from plants import VehicleParams
-from plants.bicycle import lateral_matrices
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import VehicleParams
+from evstab.plants.bicycle import lateral_matrices
 
 from .estimation.kalman import layout as kalman_layout
 from .estimation.spec import FilterDesign
@@ -142,9 +142,9 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     ``(program, z, U, p, theta)`` with ``z`` the loop state at the start of a GPS period (the filter
     initialised, its covariance at the periodic orbit's last posterior), ``U`` one period of inputs
     (a fix on its first sample, no noise, no steer)."""
-    from controllers.actuators import ActuatorLimits
-    from plants import DISTURBANCES, get_plant
-    from plants.sensors import SensorConfig
+    from evstab.controllers.actuators import ActuatorLimits
+    from evstab.plants import DISTURBANCES, get_plant
+    from evstab.plants.sensors import SensorConfig
     from .closed_loop import NOISE, latch_schedule, loop_initial_state, loop_spec, n_inputs, program
     from .estimation.analysis import discrete_model, periodic_gains, steady_state_gain
 

@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.two_dof import TwoDofDesign
-from plants import TRUTH, VehicleParams, is_multibody, truth_params
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import Maneuver, sine_lane_change, step_steer, steer_for_lateral_acceleration
-from plants.sensors import SensorConfig
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import TRUTH, VehicleParams, is_multibody, truth_params
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import Maneuver, sine_lane_change, step_steer, steer_for_lateral_acceleration
+from evstab.plants.sensors import SensorConfig
 
 from .closed_loop import EXTRA, loop_spec, program
 from .estimation import design_filter

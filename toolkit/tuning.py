@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from plants import TRUTH
+from evstab.plants import TRUTH
 
 from . import closed_loop, sweep
 from .compiled import CFunction, cache_key, compile_library

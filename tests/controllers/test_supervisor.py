@@ -4,12 +4,12 @@ the yaw moment the rear tyres can give."""
 import numpy as np
 import pytest
 
-from controllers import supervisor as sup
-from controllers.two_dof import TwoDofDesign
-from plants import G, load_vehicle
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import sine_with_dwell, step_steer
-from toolkit.simulator import simulate
+from evstab.controllers import supervisor as sup
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import G, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import sine_with_dwell, step_steer
+from evstab.toolkit.simulator import simulate
 
 
 def test_below_the_thresholds_the_ecu_passes_the_driver_through_exactly():

@@ -7,8 +7,8 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
-from plants import DISTURBANCES, ModelError, bicycle, default_disturbance, get_plant, load_vehicle
-from plants.lti import ContinuousLTI
+from evstab.plants import DISTURBANCES, ModelError, bicycle, default_disturbance, get_plant, load_vehicle
+from evstab.plants.lti import ContinuousLTI
 
 SPEEDS = (5.0, 15.0, 30.0)
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from plants import TRUTH, commonroad_mb as mb, default_disturbance, get_plant, load_vehicle
-from plants.backend import CASADI, NUMPY
-from plants.errors import ModelError
-from plants.maneuvers import step_steer
-from toolkit.simulator import simulate
+from evstab.plants import TRUTH, commonroad_mb as mb, default_disturbance, get_plant, load_vehicle
+from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.errors import ModelError
+from evstab.plants.maneuvers import step_steer
+from evstab.toolkit.simulator import simulate
 
 SETS = (1, 2, 3)
 
@@ -160,8 +160,8 @@ def test_iso_signs(set_id):
     cmd = np.array([0.0, 500.0, 20.0, 1.0, 0.0])  # +500 N m of yaw moment: T_rr > T_rl
     u = model.command_map(cmd, x, p)
     assert u[mb.INPUTS.index("torque_rr")] > 0 > u[mb.INPUTS.index("torque_rl")]
-    from plants import COMMANDS
-    from toolkit.compiled import compiled_plant
+    from evstab.plants import COMMANDS
+    from evstab.toolkit.compiled import compiled_plant
     n = 1000
     C = np.repeat(cmd[:, None], n, axis=1)
     assert COMMANDS[1] == "yaw_moment"
@@ -191,8 +191,8 @@ def test_cli_step_steer_reaches_the_package_steady_state(set_id, tmp_path):
     """`evstab simulate --plant commonroad-mb:N --maneuver step-steer --speed 60 --amplitude 1.0` ends
     at the package's own steady yaw rate for the same road-wheel angle within 2 % (measured 0.01 %:
     the servo, the smoothed camber sign and RK4 at 1 ms change nothing visible at 1 deg)."""
-    from toolkit.cli import main
-    from toolkit.logio import read_log_csv
+    from evstab.toolkit.cli import main
+    from evstab.toolkit.logio import read_log_csv
     out = tmp_path / "run.csv"
     assert main(["simulate", "--plant", f"commonroad-mb:{set_id}", "--vehicle", f"commonroad-{set_id}",
                  "--maneuver", "step-steer", "--speed", "60", "--amplitude", "1.0", "--out", str(out)]) == 0
@@ -232,8 +232,8 @@ def test_stock_steering_rate_limits_the_servo():
     p = load_vehicle("commonroad-1")
     for spec, rate in (("commonroad-mb:1:0.4", 0.4), ("commonroad-mb:1", mb.STEER_RATE_DEFAULT)):
         model = get_plant(spec)
-        from toolkit.compiled import compiled_plant
-        from plants import COMMANDS
+        from evstab.toolkit.compiled import compiled_plant
+        from evstab.plants import COMMANDS
         n = 1000
         t = np.arange(n) * 1e-3
         cmd = np.zeros((len(COMMANDS), n))

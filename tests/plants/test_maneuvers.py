@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from plants import ManeuverError, load_vehicle
-from plants.maneuvers import (dlc_000, iso3888_1_cones, iso3888_1_lanes, make_maneuver, sine_lane_change,
+from evstab.plants import ManeuverError, load_vehicle
+from evstab.plants.maneuvers import (dlc_000, iso3888_1_cones, iso3888_1_lanes, make_maneuver, sine_lane_change,
                               sine_with_dwell, steer_for_lateral_acceleration)
-from plants.params import G
+from evstab.plants.params import G
 
 
 def test_sine_with_dwell_timing():

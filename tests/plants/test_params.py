@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from plants import G, ParameterError, VehicleParams, bundled_vehicles, load_vehicle
+from evstab.plants import G, ParameterError, VehicleParams, bundled_vehicles, load_vehicle
 
 BASE = """
 [meta]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from plants import ModelError
-from plants.sensors import SensorConfig, gps_fix_mask, measure, wrap_angle
+from evstab.plants import ModelError
+from evstab.plants.sensors import SensorConfig, gps_fix_mask, measure, wrap_angle
 
 N = 200_000
 

@@ -4,12 +4,12 @@ combined slip, low speed, signs, and the roll model."""
 import numpy as np
 import pytest
 
-from plants import G, bicycle, default_disturbance, get_plant, load_vehicle, two_track
-from plants.backend import NUMPY
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import ramp_steer, step_steer
-from plants.tires import combined_forces, magic_formula_normalised, peak_normalised_slip
-from toolkit.simulator import simulate
+from evstab.plants import G, bicycle, default_disturbance, get_plant, load_vehicle, two_track
+from evstab.plants.backend import NUMPY
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import ramp_steer, step_steer
+from evstab.plants.tires import combined_forces, magic_formula_normalised, peak_normalised_slip
+from evstab.toolkit.simulator import simulate
 
 DEG = np.pi / 180
 

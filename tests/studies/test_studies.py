@@ -3,7 +3,7 @@
 import csv
 
 
-from studies import estimation_fig6, estimation_intersample, estimation_robustness
+from evstab.studies import estimation_fig6, estimation_intersample, estimation_robustness
 
 
 def test_fig6(tmp_path):
@@ -30,7 +30,7 @@ def test_robustness_quick(tmp_path):
 
 
 def test_control_fig7(tmp_path):
-    from studies import control_fig7
+    from evstab.studies import control_fig7
     rows = {r["controller"]: r for r in control_fig7.main(tmp_path, quick=True)}
     assert (tmp_path / "fig7.png").exists()
     # seed 003's claim (its controller: always acting, full steer range): with the 2-DOF controller both
@@ -42,7 +42,7 @@ def test_control_fig7(tmp_path):
 
 
 def test_control_fmvss126_quick(tmp_path):
-    from studies import control_fmvss126
+    from evstab.studies import control_fmvss126
     rows = {(r["mu"], r["controller"]): r for r in control_fmvss126.main(tmp_path, quick=True)}
     assert rows[(1.0, "none")]["pass"] is False  # the uncontrolled compact EV spins from 5 A
     assert rows[(1.0, "2-DOF supervised")]["pass"] is True
@@ -51,7 +51,7 @@ def test_control_fmvss126_quick(tmp_path):
 
 
 def test_control_fig9(tmp_path):
-    from studies import control_fig9
+    from evstab.studies import control_fig9
     rows = {r["controller"]: r for r in control_fig9.main(tmp_path, quick=True)}
     assert (tmp_path / "fig9.png").exists()
     # measured against the ECU's lagged reference: yaw-rate error 0.38 vs 0.61 deg/s (quick), 0.30 vs

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from toolkit.analysis import estimator_periodic_poles, speed_grid
-from toolkit.estimation import design_filter
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.toolkit.analysis import estimator_periodic_poles, speed_grid
+from evstab.toolkit.estimation import design_filter
 
 
 def test_speed_grid_rows():
@@ -27,7 +27,7 @@ def test_speed_grid_rows():
 def test_estimator_periodic_poles_single_rate_equal_dare_poles():
     # With a fix on every sample (gps_rate = 1 / dt) the monodromy is one sample of the
     # steady-state filter: its poles are those of F (I - K C) with the DARE gain.
-    from toolkit.estimation.analysis import discrete_model, steady_state_gain
+    from evstab.toolkit.estimation.analysis import discrete_model, steady_state_gain
     p = load_vehicle("compact-ev")
     d = design_filter("kf-bias", p)
     v, dt = 20.0, 1e-3

@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from toolkit.cli import main
-from toolkit.logio import read_log_csv
+from evstab.toolkit.cli import main
+from evstab.toolkit.logio import read_log_csv
 
 
 def test_vehicles_lists_bundled(capsys):
@@ -32,7 +32,7 @@ def test_simulate_writes_log_and_plot(tmp_path, capsys):
 
 def test_simulate_accepts_toml_path(tmp_path):
     from importlib import resources
-    src = resources.files("plants").joinpath("data", "compact-ev.toml").read_text()
+    src = resources.files("evstab.plants").joinpath("data", "compact-ev.toml").read_text()
     f = tmp_path / "mycar.toml"
     f.write_text(src)
     assert main(["simulate", "--vehicle", str(f), "--plant", "bicycle", "--maneuver", "step-steer",
@@ -60,7 +60,7 @@ def test_bad_option_exit_2(capsys):
 
 def test_console_script_runs(tmp_path):
     # the installed entry point (what the README's first command uses)
-    r = subprocess.run([sys.executable, "-m", "toolkit.cli", "simulate", "--vehicle", "compact-ev", "--maneuver",
+    r = subprocess.run([sys.executable, "-m", "evstab.toolkit.cli", "simulate", "--vehicle", "compact-ev", "--maneuver",
                         "step-steer", "--speed", "80", "--plant", "bicycle", "--out", str(tmp_path / "x.csv")],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

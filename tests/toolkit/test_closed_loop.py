@@ -6,18 +6,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import Maneuver, iso3888_1, step_steer
-from plants.sensors import SensorConfig
-from toolkit import closed_loop, stability
-from toolkit.closed_loop import LoopError
-from toolkit.estimation import design_filter
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, default_wind
+from evstab.plants.maneuvers import Maneuver, iso3888_1, step_steer
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit import closed_loop, stability
+from evstab.toolkit.closed_loop import LoopError
+from evstab.toolkit.estimation import design_filter
+from evstab.toolkit.simulator import simulate
 
 
 def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(monkeypatch):
-    from controllers.two_dof import TwoDofDesign
+    from evstab.controllers.two_dof import TwoDofDesign
     calls = []
     original = closed_loop.loop_step
 
@@ -109,8 +109,8 @@ def test_sensors_sample_the_plant_at_the_start_of_the_period():
 
 def test_a_design_folder_ecu_runs_in_the_loop():
     # an EcuDesign (what `evstab export` prints) runs as the loop's ECU, with its own calibration
-    from controllers.two_dof import TwoDofDesign
-    from toolkit.firmware.ecu import EcuDesign
+    from evstab.controllers.two_dof import TwoDofDesign
+    from evstab.toolkit.firmware.ecu import EcuDesign
     p = load_vehicle("micro-ev")
     ecu = EcuDesign.from_designs(design_filter("dakf", p), TwoDofDesign(p.as_nominal(), k_beta=9.0))
     man = step_steer(25 / 3.6, np.radians(4.0), start=0.2, duration=1.0)

@@ -8,11 +8,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from plants import TRUTH, load_vehicle
-from plants.disturbances import Disturbances, Friction
-from toolkit import sweep as sw
-from toolkit.closed_loop import EXTRA
-from toolkit.simulator import simulate
+from evstab.plants import TRUTH, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.toolkit import sweep as sw
+from evstab.toolkit.closed_loop import EXTRA
+from evstab.toolkit.simulator import simulate
 
 P = load_vehicle("compact-ev")
 CFG = sw.SweepConfig(P)
@@ -52,7 +52,7 @@ def test_sweep_row_equals_direct_single_case_runs(case):
 
 
 def test_casadi_rollout_cost_and_gradient_equal_the_numpy_simulator():
-    from toolkit.tuning import RolloutCost, phi_of
+    from evstab.toolkit.tuning import RolloutCost, phi_of
     rc = RolloutCost(CFG)
     case = CASE_A
     _, runs = sw.case_inputs(CFG, case)
@@ -100,8 +100,8 @@ def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
 
 
 def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
-    from plants.sensors import SensorConfig, gps_fix_mask
-    from toolkit.closed_loop import latch_schedule
+    from evstab.plants.sensors import SensorConfig, gps_fix_mask
+    from evstab.toolkit.closed_loop import latch_schedule
     t = np.arange(2000) * 1e-3
     fix = gps_fix_mask(t, SensorConfig(gps_rate=20.0))
     sched = latch_schedule(fix, 0.15, 1e-3)
@@ -127,7 +127,7 @@ def design_dir(quick_design_dir):
 
 
 def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_unchanged(design_dir):
-    from toolkit.design_job import read_csv
+    from evstab.toolkit.design_job import read_csv
     doc = json.loads((design_dir / "design.json").read_text())
     rows = read_csv(design_dir / "sweep.csv")
     cases = sw.sweep_cases(quick=True)
@@ -149,7 +149,7 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
 
 
 def test_design_json_loads_into_designs_that_match_it(design_dir):
-    from toolkit.design_job import load_design
+    from evstab.toolkit.design_job import load_design
     d = load_design(design_dir)
     tuned = d.document["designs"]["tuned"]
     assert d.controller.k_beta == tuned["k_beta"] and d.controller.k_gamma == tuned["k_gamma"]
@@ -158,7 +158,7 @@ def test_design_json_loads_into_designs_that_match_it(design_dir):
 
 
 def test_load_design_names_the_file_and_field(tmp_path, design_dir):
-    from toolkit.design_job import load_design
+    from evstab.toolkit.design_job import load_design
     doc = json.loads((design_dir / "design.json").read_text())
     doc["format"] = "something-else"
     (tmp_path / "design.json").write_text(json.dumps(doc))
@@ -173,7 +173,7 @@ def test_load_design_names_the_file_and_field(tmp_path, design_dir):
 
 
 def test_report_numbers_are_the_design_json_numbers(design_dir):
-    from toolkit.report import fmt
+    from evstab.toolkit.report import fmt
     doc = json.loads((design_dir / "design.json").read_text())
     md = (design_dir / "report.md").read_text()
     html = (design_dir / "report.html").read_text()
@@ -192,7 +192,7 @@ def test_report_numbers_are_the_design_json_numbers(design_dir):
 
 
 def test_report_command_redraws_the_same_report(design_dir, tmp_path):
-    from toolkit.cli import main
+    from evstab.toolkit.cli import main
     copy = tmp_path / "copy"
     shutil.copytree(design_dir, copy)
     (copy / "report.md").unlink()
@@ -203,7 +203,7 @@ def test_report_command_redraws_the_same_report(design_dir, tmp_path):
 
 
 def test_design_cli_rejects_a_scheduler_without_dask(tmp_path, capsys):
-    from toolkit.cli import main
+    from evstab.toolkit.cli import main
     assert main(["design", "--vehicle", "compact-ev", "--out", str(tmp_path), "--scheduler", "tcp://x:1"]) == 2
     assert "--scheduler needs --executor dask" in capsys.readouterr().err
 
@@ -262,7 +262,7 @@ def test_report_of_a_commonroad_car_passes_the_browser_checks(tmp_path_factory, 
     exe = _chromium()
     if exe is None:
         pytest.skip("no Chromium on this machine (.ci/run installs it from the system packages)")
-    from toolkit.cli import main
+    from evstab.toolkit.cli import main
     out = tmp_path_factory.mktemp("cr1") / "design"
     assert main(["design", "--vehicle", "commonroad-1", "--out", str(out), "--quick", "--no-progress"]) == 0
     text = (out / "report.md").read_text()

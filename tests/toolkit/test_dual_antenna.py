@@ -3,16 +3,16 @@
 import numpy as np
 import pytest
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances
-from plants.maneuvers import two_half_turns
-from plants.sensors import SensorConfig
-from toolkit.cli import main
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.dual_antenna import bank_estimate
-from toolkit.estimation.identify import cornering_stiffness
-from toolkit.logio import write_log_csv
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances
+from evstab.plants.maneuvers import two_half_turns
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.cli import main
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.dual_antenna import bank_estimate
+from evstab.toolkit.estimation.identify import cornering_stiffness
+from evstab.toolkit.logio import write_log_csv
+from evstab.toolkit.simulator import simulate
 
 BANK = np.radians(-5.0)  # right side up: banked into the left turns
 

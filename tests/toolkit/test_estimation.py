@@ -5,17 +5,17 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, default_wind
-from plants.maneuvers import make_maneuver, step_steer
-from plants.sensors import SensorConfig
-from toolkit.estimation import METHODS, design_filter, run_estimator
-from toolkit.estimation.analysis import (discrete_model, observability, periodic_gains, steady_state_gain)
-from toolkit.estimation.kalman import INPUTS, discretize, initial_state, layout
-from toolkit.estimation.runner import compiled_filter, inputs_from_columns
-from toolkit.estimation.spec import continuous_model, lateral_coefficients
-from plants.backend import NUMPY
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, default_wind
+from evstab.plants.maneuvers import make_maneuver, step_steer
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.estimation import METHODS, design_filter, run_estimator
+from evstab.toolkit.estimation.analysis import (discrete_model, observability, periodic_gains, steady_state_gain)
+from evstab.toolkit.estimation.kalman import INPUTS, discretize, initial_state, layout
+from evstab.toolkit.estimation.runner import compiled_filter, inputs_from_columns
+from evstab.toolkit.estimation.spec import continuous_model, lateral_coefficients
+from evstab.plants.backend import NUMPY
+from evstab.toolkit.simulator import simulate
 
 DEG = np.pi / 180
 
@@ -278,7 +278,7 @@ def test_estimators_never_read_truth():
 
 @pytest.mark.parametrize("v", [2.0, 8.0, 30.0])
 def test_lob_poles_are_placed(v):
-    from toolkit.estimation.lob import gains
+    from evstab.toolkit.estimation.lob import gains
     p = load_vehicle("compact-ev")
     d = design_filter("lob", p)
     L, (a11, a12, a21, a22, *_), (c21, c22) = gains(d, v)
@@ -331,7 +331,7 @@ def test_any_imu_rate_works():
 def test_riccati_map_composition_equals_applying_the_maps_in_turn():
     # the doubling product (Chu, Fan & Lin) must equal applying m1 then m2; random SPD data,
     # 1e-10 relative: a handful of 4x4 solves in double precision
-    from toolkit.estimation.analysis import _compose, _power
+    from evstab.toolkit.estimation.analysis import _compose, _power
 
     def apply(m, P):
         A, G, H = m

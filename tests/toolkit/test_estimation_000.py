@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from plants import load_vehicle
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import dlc_000
-from plants.sensors import SensorConfig
-from toolkit import timesync
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.two_stage import sideslip_at
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import dlc_000
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit import timesync
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.two_stage import sideslip_at
+from evstab.toolkit.simulator import simulate
 
 
 def test_subtractive_clustering_finds_two_blobs():

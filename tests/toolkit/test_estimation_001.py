@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from plants import load_vehicle
-from plants.maneuvers import two_half_turns
-from plants.sensors import SensorConfig
-from toolkit.cli import main
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.diagnostics import autocorrelation, nis_consistency, whiteness
-from toolkit.estimation.identify import cornering_stiffness
-from toolkit.estimation.rate_table import PAPER_TABLE_I, discretise, model, predicted_errors
-from toolkit.logio import write_log_csv
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import two_half_turns
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.cli import main
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.diagnostics import autocorrelation, nis_consistency, whiteness
+from evstab.toolkit.estimation.identify import cornering_stiffness
+from evstab.toolkit.estimation.rate_table import PAPER_TABLE_I, discretise, model, predicted_errors
+from evstab.toolkit.logio import write_log_csv
+from evstab.toolkit.simulator import simulate
 
 SPEED, RADIUS = 16.0, 50.0
 
@@ -171,7 +171,7 @@ def test_online_stiffness_ends_at_the_batch_estimate(vehicle, bicycle_turns):
     equals cornering_stiffness's to rounding; with forgetting 0.99 (about 100 fixes' memory) it ends
     within 10 % (measured -4.5 / -4.1 %: the exit of the last turn, where the smoothed yaw acceleration
     is least exact, weighs most)."""
-    from toolkit.estimation.identify import cornering_stiffness_online
+    from evstab.toolkit.estimation.identify import cornering_stiffness_online
     c = bicycle_turns
     args = (vehicle, c["t"], c["speed"], c["steer"], c["yaw_rate_true"], c["beta_true"])
     batch = cornering_stiffness(*args)

@@ -10,16 +10,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from plants import load_vehicle
-from plants.maneuvers import Maneuver, steer_for_lateral_acceleration
-from plants.sensors import SensorConfig
-from toolkit import faults as F
-from toolkit.cli import main
-from toolkit.estimation import design_filter, run_estimator
-from toolkit.estimation.monitor import FLAGS, MonitorSettings, gyro_stuck, speed_dropout
-from toolkit.logio import read_log_csv, write_log_csv
-from toolkit.nmea import write_nmea
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import Maneuver, steer_for_lateral_acceleration
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit import faults as F
+from evstab.toolkit.cli import main
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.monitor import FLAGS, MonitorSettings, gyro_stuck, speed_dropout
+from evstab.toolkit.logio import read_log_csv, write_log_csv
+from evstab.toolkit.nmea import write_nmea
+from evstab.toolkit.simulator import simulate
 
 T0, T1 = 20.0, 30.0
 

@@ -17,24 +17,24 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from controllers.schedule import ROWS, SpeedSchedule
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from plants.backend import CASADI
-from plants.bicycle import lateral_coefficients
-from plants.disturbances import Disturbances, Friction, default_wind
-from plants.maneuvers import make_maneuver
-from plants.sensors import SensorConfig
-from toolkit.cli import main
-from toolkit.compiled import compiler
-from toolkit.design_job import basic_design_document
-from toolkit.estimation import design_filter
-from toolkit.estimation.spec import NoiseSettings
-from toolkit.firmware import gains as gains_mod
-from toolkit.firmware.ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step
-from toolkit.firmware.export import ecu_from_design, gain_set, render
-from toolkit.firmware.replay import ecu_inputs, ecu_program
-from toolkit.simulator import simulate
+from evstab.controllers.schedule import ROWS, SpeedSchedule
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.plants.backend import CASADI
+from evstab.plants.bicycle import lateral_coefficients
+from evstab.plants.disturbances import Disturbances, Friction, default_wind
+from evstab.plants.maneuvers import make_maneuver
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.cli import main
+from evstab.toolkit.compiled import compiler
+from evstab.toolkit.design_job import basic_design_document
+from evstab.toolkit.estimation import design_filter
+from evstab.toolkit.estimation.spec import NoiseSettings
+from evstab.toolkit.firmware import gains as gains_mod
+from evstab.toolkit.firmware.ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step
+from evstab.toolkit.firmware.export import ecu_from_design, gain_set, render
+from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
+from evstab.toolkit.simulator import simulate
 
 CC = compiler()
 needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
@@ -105,7 +105,7 @@ def fault_log(closed_loop, tmp_path_factory):
     cols["ay"][k0:k1] *= ratio ** 2
     cols["speed"][k0:k1] = slow
     path = tmp_path_factory.mktemp("logs") / "faults.csv"
-    from toolkit.logio import write_log_csv
+    from evstab.toolkit.logio import write_log_csv
     write_log_csv(path, cols)
     return cols, path
 
@@ -273,9 +273,9 @@ def test_a2l_parses_and_its_addresses_update_from_the_elf(design_dir, tmp_path):
     # the MEASUREMENT objects (every output, the watched supervisor state) sit where the ELF's symbol
     # table puts the harness's evstab_out / evstab_st plus the entry's offset (8 bytes per float64)
     import re
-    from toolkit.firmware.asam import MEASURED_STATE, measurements
-    from toolkit.firmware.export import ecu_from_design
-    from toolkit.firmware.ecu import OUTPUT_NAMES
+    from evstab.toolkit.firmware.asam import MEASURED_STATE, measurements
+    from evstab.toolkit.firmware.export import ecu_from_design
+    from evstab.toolkit.firmware.ecu import OUTPUT_NAMES
     nm = shutil.which("nm")
     if nm is None:
         pytest.skip("no nm (binutils)")
@@ -472,7 +472,7 @@ def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_d
 def test_simulate_with_a_design_folder_runs_its_ecu_in_the_loop(design_dir, ecu, tmp_path, capsys):
     """``evstab simulate --design DIR`` closes the loop with the folder's ECU: the same run as the
     simulator given that ECU, and not the default design's."""
-    from toolkit.logio import read_log
+    from evstab.toolkit.logio import read_log
     out = tmp_path / "run.csv"
     args = ["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "60", "--amplitude", "2",
             "--out", str(out)]

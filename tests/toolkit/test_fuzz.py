@@ -14,9 +14,9 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plants import bundled_vehicles
-from toolkit.cli import main
-from toolkit.logio import read_log_csv
+from evstab.plants import bundled_vehicles
+from evstab.toolkit.cli import main
+from evstab.toolkit.logio import read_log_csv
 
 N_LOGS, N_RANDOM_TABLES, N_VEHICLES = 600, 300, 300
 SETTINGS = dict(derandomize=True, deadline=None, database=None,
@@ -275,8 +275,8 @@ def test_a_vehicle_that_would_make_the_filter_diverge_is_refused(tmp_path, capsy
 
 def test_estimates_that_stop_being_numbers_are_refused_naming_the_row():
     import pytest
-    from plants.errors import EvstabError
-    from toolkit.cli import _require_finite
+    from evstab.plants.errors import EvstabError
+    from evstab.toolkit.cli import _require_finite
     t = np.arange(5) * 1e-3
     with pytest.raises(EvstabError, match=r"log.csv: row 5 \(t = 0.003 s\): the beta estimate is not finite"):
         _require_finite("log.csv", t, {"beta": np.array([0.0, 0.1, 0.2, np.nan, np.inf])})

@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from controllers.two_dof import STEER_AUTHORITY, TwoDofDesign
-from plants import load_vehicle
-from toolkit import limits as lm
+from evstab.controllers.two_dof import STEER_AUTHORITY, TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.toolkit import limits as lm
 
 
 def _fm(runs, failed):
@@ -35,7 +35,7 @@ def test_sideslip_bound_follows_the_uncontrolled_car():
 
 
 def test_compare_needs_the_stated_margin():
-    from toolkit.design_job import BETTER_MARGIN, compare
+    from evstab.toolkit.design_job import BETTER_MARGIN, compare
     rows = [{"design": d, "case_id": 0, "cost": c, "stable": True} for d, c in (("paper", 10.0), ("tuned", 9.6))]
     s = compare(rows)
     assert BETTER_MARGIN == 0.05 and not s["tuned_strictly_better_worst_case"]  # 4 % better: not better
@@ -49,8 +49,8 @@ def test_steer_authority_comes_from_the_vehicle_file():
     q = dataclasses.replace(p, steer_authority=np.deg2rad(5.0), steer_authority_rate=np.deg2rad(40.0))
     d = TwoDofDesign(q)
     assert d.steer_authority == np.deg2rad(5.0) and d.steer_authority_rate == np.deg2rad(40.0)
-    from toolkit.estimation import design_filter
-    from toolkit.firmware.ecu import EcuDesign
+    from evstab.toolkit.estimation import design_filter
+    from evstab.toolkit.firmware.ecu import EcuDesign
     cal = {c.name: c.value for c in EcuDesign.from_designs(design_filter("dakf", q), d).calibration()}
     assert cal["steer_authority"] == np.deg2rad(5.0) and cal["steer_authority_rate"] == np.deg2rad(40.0)
     with pytest.raises(ValueError, match="steer_authority"):
@@ -63,7 +63,7 @@ def design_dir(quick_design_dir):
 
 
 def test_quick_design_passes_fmvss_and_is_no_worse_than_no_control(design_dir):
-    from toolkit.design_job import read_csv
+    from evstab.toolkit.design_job import read_csv
     doc = json.loads((design_dir / "design.json").read_text())
     rows = read_csv(design_dir / "limits.csv")
     lim = doc["sweep"]["limits"]
@@ -81,9 +81,9 @@ def test_quick_design_passes_fmvss_and_is_no_worse_than_no_control(design_dir):
 def test_limits_csv_reproduces_through_the_exported_ecu(design_dir):
     # the same FMVSS 126 series on mu 0.6, with the ECU as `evstab export` makes it from the folder
     # (schedule tables, calibration from design.json) instead of the design objects: same verdicts
-    from toolkit.design_job import read_csv
-    from toolkit.firmware.export import ecu_from_design
-    from toolkit.fmvss126 import run_series
+    from evstab.toolkit.design_job import read_csv
+    from evstab.toolkit.firmware.export import ecu_from_design
+    from evstab.toolkit.fmvss126 import run_series
     ecu, _ = ecu_from_design(design_dir)
     row = next(r for r in read_csv(design_dir / "limits.csv")
                if r["kind"] == "fmvss126" and r["design"] == "tuned" and r["mu"] == 0.6)

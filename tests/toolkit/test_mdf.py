@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from asammdf import MDF, Signal
 
-from plants import load_vehicle
-from plants.maneuvers import make_maneuver
-from plants.sensors import SensorConfig
-from toolkit.cli import main
-from toolkit.logio import LogFormatError, read_log, read_log_csv
-from toolkit.mdf import load_channel_map
-from toolkit.simulator import simulate
+from evstab.plants import load_vehicle
+from evstab.plants.maneuvers import make_maneuver
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.cli import main
+from evstab.toolkit.logio import LogFormatError, read_log, read_log_csv
+from evstab.toolkit.mdf import load_channel_map
+from evstab.toolkit.simulator import simulate
 
 MAP = """
 [options]
@@ -65,7 +65,7 @@ def logs(tmp_path_factory):
     res = simulate(p, "two-track", man, sensors=SensorConfig(gps_outages=((2.0, 3.0),)), seed=5)
     cols = {k: v for k, v in res.log_columns().items() if not k.endswith("_true")}
     d = tmp_path_factory.mktemp("mdf")
-    from toolkit.logio import write_log_csv
+    from evstab.toolkit.logio import write_log_csv
     write_log_csv(d / "log.csv", cols)
     t = cols["t"]
     fix = np.isfinite(cols["gps_course"])

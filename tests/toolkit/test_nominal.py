@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from plants import commonroad_mb as mb, load_vehicle
-from plants.maneuvers import step_steer
-from toolkit.cli import main
-from toolkit.simulator import simulate
+from evstab.plants import commonroad_mb as mb, load_vehicle
+from evstab.plants.maneuvers import step_steer
+from evstab.toolkit.cli import main
+from evstab.toolkit.simulator import simulate
 
 
 @pytest.mark.parametrize("set_id", (1, 2, 3))

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from plants import COMMANDS, TRUTH, default_disturbance, get_plant, load_vehicle
-from plants.disturbances import Disturbances, Friction, default_wind
-from plants.maneuvers import dlc_000, iso3888_1, make_maneuver, step_steer
-from plants.sensors import SensorConfig, wrap_angle
-from toolkit.compiled import CompiledPlant
-from toolkit.simulator import simulate
+from evstab.plants import COMMANDS, TRUTH, default_disturbance, get_plant, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction, default_wind
+from evstab.plants.maneuvers import dlc_000, iso3888_1, make_maneuver, step_steer
+from evstab.plants.sensors import SensorConfig, wrap_angle
+from evstab.toolkit.compiled import CompiledPlant
+from evstab.toolkit.simulator import simulate
 
 DEG = np.pi / 180
 
@@ -115,7 +115,7 @@ def test_iso3888_1_driver_stays_between_cones_at_moderate_speed():
     p = load_vehicle("compact-ev")
     man = iso3888_1(60 / 3.6, p.width)
     r = simulate(p, "two-track", man)
-    from plants.maneuvers import iso3888_1_lanes
+    from evstab.plants.maneuvers import iso3888_1_lanes
     g = iso3888_1_lanes(p.width)
     x, y = r.truth["x"], r.truth["y"]
     half = p.width / 2
@@ -136,7 +136,7 @@ def test_wind_pushes_left_and_yaws():
 
 
 def test_csv_round_trip(tmp_path, compact):
-    from toolkit.logio import read_log_csv
+    from evstab.toolkit.logio import read_log_csv
     r = simulate(compact, "two-track", make_maneuver("step-steer", compact, 50 / 3.6),
                  sensors=SensorConfig(gps_outages=((2.0, 3.0),)))
     path = tmp_path / "log.csv"
@@ -152,7 +152,7 @@ def test_csv_round_trip(tmp_path, compact):
 
 
 def test_unsupported_plant_params_named():
-    from plants import ParameterError, VehicleParams
+    from evstab.plants import ParameterError, VehicleParams
     p = VehicleParams(name="bare", mass=1500, yaw_inertia=2500, lf=1.2, lr=1.4,
                       cornering_stiffness_front=40000, cornering_stiffness_rear=45000)
     with pytest.raises(ParameterError, match="two-track.*wheel_radius"):
@@ -167,7 +167,7 @@ def test_commands_recorded(compact):
 
 
 def test_reading_selected_columns(tmp_path, compact):
-    from toolkit.logio import REQUIRED, read_log_csv
+    from evstab.toolkit.logio import REQUIRED, read_log_csv
     r = simulate(compact, "bicycle", make_maneuver("step-steer", compact, 50 / 3.6))
     path = tmp_path / "log.csv"
     r.write_csv(path)
@@ -185,6 +185,6 @@ def test_reading_selected_columns(tmp_path, compact):
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join(text) + "\n")
     assert len(read_log_csv(bad, columns=("ay",))) == len(full)
-    from toolkit.logio import LogFormatError
+    from evstab.toolkit.logio import LogFormatError
     with pytest.raises(LogFormatError, match="row 6, column 'wheel_speed_fl'"):
         read_log_csv(bad)

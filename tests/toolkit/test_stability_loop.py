@@ -14,11 +14,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controllers.schedule import SpeedSchedule
-from controllers.two_dof import TwoDofDesign
-from plants import load_vehicle
-from toolkit.estimation import design_filter
-from toolkit import stability as st
+from evstab.controllers.schedule import SpeedSchedule
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.toolkit.estimation import design_filter
+from evstab.toolkit import stability as st
 
 GOLDEN = {
     ("compact-ev", "dakf", 5.0, 5.0, False, 5.0): [

@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from plants import load_vehicle
-from plants.errors import ParameterError
-from toolkit.cli import main
+from evstab.plants import load_vehicle
+from evstab.plants.errors import ParameterError
+from evstab.toolkit.cli import main
 
 P = load_vehicle("compact-ev")
 
@@ -33,13 +33,13 @@ def test_physically_impossible_parameters_are_refused_naming_field_and_bound(cha
 
 
 def test_every_bundled_vehicle_meets_the_physics_checks():
-    from plants import bundled_vehicles
+    from evstab.plants import bundled_vehicles
     for name in bundled_vehicles():
         load_vehicle(name)  # raises if not
 
 
 def test_an_impossible_vehicle_file_exits_2_and_writes_nothing(tmp_path, capsys):
-    from toolkit.nominal import to_toml
+    from evstab.toolkit.nominal import to_toml
     f = tmp_path / "v.toml"
     f.write_text(to_toml(P, "test").replace("roll_inertia = 800.0", "roll_inertia = 200.0"))
     assert "roll_inertia = 200.0" in f.read_text()

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from plants.backend import NUMPY
+from evstab.plants.backend import NUMPY
 from .kalman import discretize
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import VehicleParams
-from plants.params import G
+from evstab.plants import VehicleParams
+from evstab.plants.params import G
 
 
 @dataclass(frozen=True, kw_only=True)

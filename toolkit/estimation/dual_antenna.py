@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.backend import NUMPY
-from plants.params import G
+from evstab.plants.backend import NUMPY
+from evstab.plants.params import G
 from .kalman import INPUTS, _col, scalar_update, wrap
 from .spec import FilterDesign
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import G, VehicleParams, load_vehicle
-from plants.disturbances import Disturbances, Friction
-from plants.maneuvers import iso3888_1, ramp_steer, sine_lane_change, sine_with_dwell, steer_for_lateral_acceleration
-from plants.sensors import SensorConfig
-from toolkit.simulator import simulate
+from evstab.plants import G, VehicleParams, load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import iso3888_1, ramp_steer, sine_lane_change, sine_with_dwell, steer_for_lateral_acceleration
+from evstab.plants.sensors import SensorConfig
+from evstab.toolkit.simulator import simulate
 
 from .runner import run_estimator
 from .spec import NoiseSettings, design_filter

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.backend import CASADI, NUMPY
+from evstab.plants.backend import CASADI, NUMPY
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
 INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay", "gyro_ok",

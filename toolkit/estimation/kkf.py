@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.backend import NUMPY
+from evstab.plants.backend import NUMPY
 from .kalman import wrap
 from .spec import FilterDesign
 

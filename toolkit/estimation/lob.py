@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.backend import NUMPY
+from evstab.plants.backend import NUMPY
 from .spec import FilterDesign, lateral_coefficients
 
 STATE_SIZE = 3

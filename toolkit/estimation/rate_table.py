@@ -25,8 +25,8 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from plants import VehicleParams
-from plants.bicycle import lateral_coefficients
+from evstab.plants import VehicleParams
+from evstab.plants.bicycle import lateral_coefficients
 
 PAPER_TABLE_I = (
     # rate [Hz], sigma_course [deg], sigma_gyro [deg/s], predicted sigma_r [deg/s], predicted sigma_beta [deg]

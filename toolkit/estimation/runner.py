@@ -15,7 +15,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from plants.backend import CASADI, NUMPY
+from evstab.plants.backend import CASADI, NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
 from . import dual_antenna, kalman, kkf, lob, two_stage

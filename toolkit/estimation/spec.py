@@ -55,9 +55,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants import VehicleParams
-from plants.bicycle import lateral_coefficients
-from plants.errors import ModelError
+from evstab.plants import VehicleParams
+from evstab.plants.bicycle import lateral_coefficients
+from evstab.plants.errors import ModelError
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 """Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of

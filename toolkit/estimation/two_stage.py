@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.backend import NUMPY
+from evstab.plants.backend import NUMPY
 from .kalman import INPUTS, _col, scalar_update, wrap
 from .spec import FilterDesign
 

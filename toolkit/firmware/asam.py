@@ -45,8 +45,8 @@ _STATE_UNITS = {"steer_correction": "rad", "ay_demand": "m/s^2"}
 def measurements(d) -> list[dict]:
     """MEASUREMENT objects: every ECU output (``evstab_out.<name>``) and the state entries of
     :data:`MEASURED_STATE` (``evstab_st`` plus the entry's byte offset); unit, description, range."""
-    from controllers import supervisor as sup_mod
-    from controllers import two_dof as ctl_mod
+    from evstab.controllers import supervisor as sup_mod
+    from evstab.controllers import two_dof as ctl_mod
     from .ecu import OUTPUTS
     out = [{"name": f"out_{n}", "symbol": f"evstab_out.{n}", "offset": 0, "unit": u, "description": desc}
            for n, u, desc in OUTPUTS]

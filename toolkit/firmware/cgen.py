@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from plants.errors import ModelError
+from evstab.plants.errors import ModelError
 
 
 @dataclass(frozen=True)

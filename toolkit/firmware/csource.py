@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controllers.schedule import ROWS
+from evstab.controllers.schedule import ROWS
 
 from .cgen import Precision, c_array, emit_body
 from .ecu import INPUTS, OUTPUTS, EcuDesign, traced_steps

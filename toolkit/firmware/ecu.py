@@ -27,13 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers import supervisor as sup_mod
-from controllers import two_dof as ctl_mod
-from controllers.schedule import ROWS, SpeedSchedule
-from controllers.two_dof import TwoDofDesign, control_law, reference
-from plants.backend import CASADI, NUMPY
-from plants import G
-from plants.errors import ModelError
+from evstab.controllers import supervisor as sup_mod
+from evstab.controllers import two_dof as ctl_mod
+from evstab.controllers.schedule import ROWS, SpeedSchedule
+from evstab.controllers.two_dof import TwoDofDesign, control_law, reference
+from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants import G
+from evstab.plants.errors import ModelError
 
 from ..compiled import with_fields
 from ..estimation import kalman

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plants.errors import EvstabError
+from evstab.plants.errors import EvstabError
 
 from ..design_job import evstab_version, git_revision, load_design
 from ..logio import atomic_write
@@ -27,7 +27,7 @@ class ExportError(EvstabError, ValueError):
 
 def ecu_from_design(path) -> tuple[EcuDesign, dict]:
     """The ECU design of an ``evstab design`` folder (or a ``design.json``) and its document."""
-    from controllers.schedule import SpeedSchedule
+    from evstab.controllers.schedule import SpeedSchedule
     try:
         loaded = load_design(path)
     except ValueError as e:

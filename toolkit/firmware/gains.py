@@ -19,10 +19,10 @@ import json
 import math
 from pathlib import Path
 
-from controllers.schedule import ROWS, RULE, UNITS, SpeedSchedule
-from controllers.two_dof import TwoDofDesign
-from plants.errors import EvstabError
-from plants.params import VehicleParams
+from evstab.controllers.schedule import ROWS, RULE, UNITS, SpeedSchedule
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants.errors import EvstabError
+from evstab.plants.params import VehicleParams
 
 from ..estimation.spec import FilterDesign, NoiseSettings, design_filter
 from .ecu import INPUTS, OUTPUTS, EcuDesign

@@ -23,7 +23,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from plants.backend import NUMPY
+from evstab.plants.backend import NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
 from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps

@@ -1,0 +1,53 @@
+"""One package: evstab and its parts as evstab.<part>, nothing else on the import path; the version."""
+
+import subprocess
+import sys
+import zipfile
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+
+import evstab
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_version_is_the_installed_distributions(capsys):
+    from evstab.toolkit.cli import main
+    assert evstab.__version__ == version("evstab")
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.strip() == f"evstab {version('evstab')}"
+
+
+def test_the_entry_points_a_script_needs():
+    p = evstab.load_vehicle("compact-ev")
+    assert isinstance(p, evstab.VehicleParams) and "compact-ev" in evstab.bundled_vehicles()
+    r = evstab.simulate(p, "bicycle", evstab.make_maneuver("step-steer", p, 60 / 3.6))
+    assert len(r.t) == 6000
+    for name in evstab.__all__:
+        assert getattr(evstab, name) is not None
+    with pytest.raises(AttributeError):
+        evstab.no_such_name  # noqa: B018
+
+
+def test_only_evstab_is_importable_outside_the_source_tree(tmp_path):
+    # from another folder (the source tree is not on sys.path there): the generic names are not
+    # importable, evstab's parts are
+    code = ("import importlib.util as u, evstab.plants, evstab.toolkit.cli, evstab.studies._common;"
+            "print([n for n in ('plants', 'controllers', 'toolkit', 'studies') if u.find_spec(n) is not None])")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_wheel_holds_one_top_level_package(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(tmp_path), str(ROOT)],
+                         capture_output=True, text=True, timeout=600)
+    if res.returncode != 0:
+        pytest.skip(f"cannot build a wheel here (no build backend from the package registry?): {res.stderr[-300:]}")
+    wheel = next(tmp_path.glob("evstab-*.whl"))
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {n.split("/")[0] for n in names} == {"evstab", f"evstab-{version('evstab')}.dist-info"}
+    assert "evstab/plants/data/compact-ev.toml" in names and "evstab/toolkit/cli.py" in names
