@@ -51,3 +51,22 @@ def test_the_wheel_holds_one_top_level_package(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     assert {n.split("/")[0] for n in names} == {"evstab", f"evstab-{version('evstab')}.dist-info"}
     assert "evstab/plants/data/compact-ev.toml" in names and "evstab/toolkit/cli.py" in names
+
+
+def test_the_formats_page_carries_the_codes_tables():
+    # docs/formats.md's drive-log and vehicle tables are printed from the reader's schema and the
+    # validator's fields: the page may not drift from them
+    from evstab.toolkit.docs import drive_log_table, vehicle_table
+    page = (ROOT / "docs" / "formats.md").read_text()
+    for row in (drive_log_table() + "\n" + vehicle_table()).splitlines():
+        assert row in page, row
+
+
+def test_readme_points_at_pages_that_exist():
+    import re
+    text = (ROOT / "README.md").read_text()
+    links = re.findall(r"\]\((docs/[\w.-]+\.md)\)", text)
+    assert len(links) >= 8 and all((ROOT / link).is_file() for link in links)
+    for page in (ROOT / "docs").glob("*.md"):  # and the pages' links between themselves
+        for link in re.findall(r"\]\(([\w.-]+\.md)\)", page.read_text()):
+            assert (ROOT / "docs" / link).is_file(), (page.name, link)
