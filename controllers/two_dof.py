@@ -39,6 +39,7 @@ import numpy as np
 from evstab.plants import G, VehicleParams
 from evstab.plants.backend import NUMPY, unpack
 from evstab.plants.bicycle import lateral_coefficients, lateral_matrices
+from evstab.plants.errors import DesignError
 
 
 
@@ -159,17 +160,17 @@ class TwoDofDesign:
                 own = getattr(self.params, name, None)
                 object.__setattr__(self, name, float(default if own is None else own))
         if not (self.k_beta > 0 and self.k_gamma > 0):
-            raise ValueError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
+            raise DesignError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
-            raise ValueError(f"control period must be > 0 s, got {self.dt}")
+            raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
                      "slip_cut_time", "slip_recover_time", "slip_lead_time"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+                raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0 <= self.slip_onset < 1:
-            raise ValueError(f"controller setting 'slip_onset' must be in [0, 1), got {self.slip_onset!r}")
+            raise DesignError(f"controller setting 'slip_onset' must be in [0, 1), got {self.slip_onset!r}")
         if not 0 < self.mu_min <= self.mu_max:
-            raise ValueError(f"controller friction bounds need 0 < mu_min <= mu_max, got {self.mu_min}, {self.mu_max}")
+            raise DesignError(f"controller friction bounds need 0 < mu_min <= mu_max, got {self.mu_min}, {self.mu_max}")
 
     @property
     def nz_max(self) -> float:

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import casadi as ca
 import numpy as np
+from .errors import ModelError
 
 _CASADI_TYPES = (ca.SX, ca.MX, ca.DM)
 
@@ -72,7 +73,7 @@ def unpack(vec, names):
     """
     n = vec.shape[0]
     if n != len(names):
-        raise ValueError(f"expected a vector of {len(names)} signals {tuple(names)}, got length {n}")
+        raise ModelError(f"expected a vector of {len(names)} signals {tuple(names)}, got length {n}")
     return SimpleNamespace(**{name: vec[i] for i, name in enumerate(names)})
 
 

@@ -17,6 +17,7 @@ from .backend import ops_for, unpack
 from .lti import ContinuousLTI
 from .model import DISTURBANCES, TRUTH, PlantModel
 from .params import G, VehicleParams
+from .errors import ModelError
 
 STATES = ("beta", "yaw_rate", "yaw", "x", "y")
 INPUTS = ("steer", "yaw_moment", "vx")
@@ -88,7 +89,7 @@ def matrices(p: VehicleParams, vx: float) -> ContinuousLTI:
     ``course = yaw + beta`` (seed 003 eq. 3) and ``ay = vx (beta' + yaw_rate)``.
     """
     if not vx > 0.0:
-        raise ValueError(f"the linear bicycle model needs a positive speed, got vx = {vx!r} m/s")
+        raise ModelError(f"the linear bicycle model needs a positive speed, got vx = {vx!r} m/s")
     m, iz = p.mass, p.yaw_inertia
     a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vx)
     A = np.array([[a11, a12, 0.0], [a21, a22, 0.0], [0.0, 1.0, 0.0]])

@@ -21,3 +21,19 @@ class ModelError(EvstabError, ValueError):
 
 class ManeuverError(EvstabError, ValueError):
     """A manoeuvre definition is inconsistent (negative speed, unknown name, ...)."""
+
+
+class DesignError(EvstabError, ValueError):
+    """A controller design, a design folder or a design setting is invalid."""
+
+
+class SettingsError(EvstabError, ValueError):
+    """A setting of a tool (monitor, fault injection, executor, writer) is invalid."""
+
+
+class DataError(EvstabError, ValueError):
+    """The data cannot answer the question asked (too few samples, no excitation, not the test run)."""
+
+
+class CompileError(EvstabError, RuntimeError):
+    """Compiling or calling generated code failed."""

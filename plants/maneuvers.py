@@ -239,6 +239,23 @@ def dlc_000(speed: float, *, b1: float = 3.5, b2: float = 3.5, s1: float = 60.0,
 def make_maneuver(name: str, p: VehicleParams, speed: float, amplitude: float | None = None) -> Maneuver:
     """Build a manoeuvre by name with the CLI's conventions.
 
+    Parameters
+    ----------
+    name : str
+        One of :data:`MANEUVERS` (``step-steer``, ``sine-lane-change``, ``ramp-steer``,
+        ``sine-with-dwell``, ``constant-radius``, ``iso3888-1``, ``dlc-000``).
+    p : VehicleParams
+        The vehicle (its linear model sets default amplitudes; its width the ISO 3888-1 lanes).
+    speed : float
+        Speed [m/s] the manoeuvre is driven at.
+    amplitude : float, optional
+        Road-wheel angle [rad] (see below); None: the default.
+
+    Returns
+    -------
+    Maneuver
+        The steer profile (or path for the path follower), speed and duration.
+
     ``amplitude`` [rad] is the road-wheel amplitude (step, sine, sine-with-dwell),
     the final angle of the ramp (reached 10 s after its start), or ignored for the
     path-following manoeuvres. Defaults: 2 deg (step), 3 deg (sine lane change),

@@ -311,7 +311,13 @@ def parse_vehicle_toml(text: str, origin: str) -> VehicleParams:
 
 
 def bundled_vehicles() -> dict[str, str]:
-    """Bundled parameter-set names -> their [meta] name."""
+    """The bundled vehicle files.
+
+    Returns
+    -------
+    dict of str to str
+        File name (what :func:`load_vehicle` takes) -> the file's ``[meta] name``.
+    """
     out = {}
     for entry in sorted(resources.files("evstab.plants").joinpath("data").iterdir(), key=lambda e: e.name):
         if entry.name.endswith(".toml"):
@@ -320,7 +326,25 @@ def bundled_vehicles() -> dict[str, str]:
 
 
 def load_vehicle(name_or_path: str | Path) -> VehicleParams:
-    """Load a bundled vehicle by name (``micro-ev``, ``sedan-000``, ``compact-ev``) or a TOML file."""
+    """Load a bundled vehicle by name or a vehicle TOML file.
+
+    Parameters
+    ----------
+    name_or_path : str or pathlib.Path
+        A bundled name (:func:`bundled_vehicles`: ``compact-ev``, ``micro-ev``, ``sedan-000``,
+        ``commonroad-1`` .. ``commonroad-3``) or the path of a TOML file (``docs/formats.md``).
+
+    Returns
+    -------
+    VehicleParams
+        The validated parameters, SI units (kg, m, kg m^2, N/rad per tire, ...).
+
+    Raises
+    ------
+    ParameterError
+        The file is missing, not TOML, lacks a required key, or a value is out of its range or
+        against physics; the message names the file, the key, the value and the bound.
+    """
     key = str(name_or_path)
     data = resources.files("evstab.plants").joinpath("data")
     if not key.endswith(".toml") and data.joinpath(key + ".toml").is_file():

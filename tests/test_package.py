@@ -70,3 +70,44 @@ def test_readme_points_at_pages_that_exist():
     for page in (ROOT / "docs").glob("*.md"):  # and the pages' links between themselves
         for link in re.findall(r"\]\(([\w.-]+\.md)\)", page.read_text()):
             assert (ROOT / "docs" / link).is_file(), (page.name, link)
+
+
+def test_library_raises_only_typed_errors():
+    # a user-facing error is an EvstabError subclass (the command line turns those into exit 2 with
+    # the message); a bare ValueError/RuntimeError/Exception raised by the library would be a traceback
+    import ast
+    bare = {"ValueError", "RuntimeError", "Exception", "KeyError", "TypeError", "OSError", "AssertionError"}
+    found = []
+    for part in ("plants", "controllers", "toolkit", "studies"):
+        for f in sorted((ROOT / part).rglob("*.py")):
+            tree = ast.parse(f.read_text())
+            protocol = {id(n) for fn in ast.walk(tree) if isinstance(fn, ast.FunctionDef) and
+                        fn.name in ("__getitem__", "__getattr__") for n in ast.walk(fn)}  # KeyError there is the protocol
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call) and id(node) not in protocol and \
+                        isinstance(node.exc.func, ast.Name) and node.exc.func.id in bare:
+                    found.append(f"{f.relative_to(ROOT)}:{node.lineno} {node.exc.func.id}")
+    assert not found, found
+    import evstab.plants.errors as errors
+    import evstab.toolkit.firmware.export  # noqa: F401 (defines ExportError)
+    for cls in vars(errors).values():
+        if isinstance(cls, type) and issubclass(cls, Exception):
+            assert issubclass(cls, errors.EvstabError), cls
+
+
+def test_the_public_api_has_numpydoc_with_every_parameter():
+    # as python-control's docstring test does: every parameter of a public function is in its
+    # "Parameters" section ("name : type"), and it says what it returns
+    import inspect
+    import re
+    for name in evstab.__all__:
+        obj = getattr(evstab, name, None)
+        if not inspect.isfunction(obj):
+            continue
+        doc = inspect.getdoc(obj) or ""
+        params = [p for p in inspect.signature(obj).parameters if p not in ("self", "args", "kwargs")]
+        if params:
+            assert "Parameters\n----------" in doc, name
+            for p in params:
+                assert re.search(rf"^{p}( :|, )|, {p} :", doc, flags=re.M), (name, p)
+        assert "Returns\n-------" in doc, name

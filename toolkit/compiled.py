@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 
 from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams
+from evstab.plants.errors import CompileError
 
 CODE_VERSION = "3"
 """Bump when generated code changes meaning (invalidates the compiled cache)."""
@@ -208,7 +209,7 @@ def load_chunk_library(key: str, build, name: str, required: bool = False) -> "C
         lib = compile_library([build()], key)
     if lib is None:
         if required:
-            raise RuntimeError("no C compiler available for backend 'c'")
+            raise CompileError("no C compiler available for backend 'c'")
         return None
     return CFunction(ctypes.CDLL(str(lib)), name)
 
@@ -265,7 +266,7 @@ class CFunction:
         szs = [ctypes.c_longlong() for _ in range(4)]
         work.argtypes = [ctypes.POINTER(ctypes.c_longlong)] * 4
         if work(*[ctypes.byref(s) for s in szs]) != 0:
-            raise RuntimeError(f"{name}_work failed")
+            raise CompileError(f"{name}_work failed")
         self._sizes = tuple(s.value for s in szs)
         self._local = threading.local()
         self._call = getattr(lib, name)
@@ -295,7 +296,7 @@ class CFunction:
         for i, r in enumerate(results):
             res[i] = r if isinstance(r, int) else r.ctypes.data
         if self._call(arg, res, iw.ctypes.data, w.ctypes.data, 0) != 0:
-            raise RuntimeError("compiled evstab function reported an error")
+            raise CompileError("compiled evstab function reported an error")
 
 
 class CompiledPlant:

@@ -43,6 +43,7 @@ from .analysis import SPEEDS_KMH, speed_grid
 from .estimation.spec import FilterDesign, NoiseSettings
 from .logio import atomic_write
 from .stability import estimator_loop, nominal_loop
+from evstab.plants.errors import DesignError
 
 FORMAT = "evstab-design/1"
 
@@ -132,21 +133,38 @@ class LoadedDesign:
 
 
 def load_design(path) -> LoadedDesign:
-    """Read ``DIR/design.json`` (or the file itself); errors name the file and the field."""
+    """Read a design folder back.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        An ``evstab design`` folder or its ``design.json``.
+
+    Returns
+    -------
+    LoadedDesign
+        The document, the nominal vehicle, the filter design and the controller design.
+
+    Raises
+    ------
+    DesignError
+        The file is missing, not JSON, of another format, or lacks a field; the message names
+        the file and the field.
+    """
     from .estimation import design_filter
     from evstab.plants.params import VehicleParams as VP
     path = Path(path)
     f = path / "design.json" if path.is_dir() else path
     if not f.is_file():
-        raise ValueError(f"{f}: no such file; expected an 'evstab design' folder or its design.json")
+        raise DesignError(f"{f}: no such file; expected an 'evstab design' folder or its design.json")
     try:
         doc = json.loads(f.read_text())
     except OSError as e:
-        raise ValueError(f"{f}: cannot read it ({e.strerror})") from None
+        raise DesignError(f"{f}: cannot read it ({e.strerror})") from None
     except json.JSONDecodeError as e:
-        raise ValueError(f"{f}: not JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
+        raise DesignError(f"{f}: not JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
     if doc.get("format") != FORMAT:
-        raise ValueError(f"{f}: field 'format' is {doc.get('format')!r}, expected {FORMAT!r}")
+        raise DesignError(f"{f}: field 'format' is {doc.get('format')!r}, expected {FORMAT!r}")
     try:
         params = VP(**doc["vehicle"]["nominal_params"])
         est = doc["estimator"]
@@ -157,9 +175,9 @@ def load_design(path) -> LoadedDesign:
         ctl = TwoDofDesign(params, **{k: v for k, v in c.items() if k != "yaw_moment_max"},
                            yaw_moment_max=c["yaw_moment_max"])
     except KeyError as e:
-        raise ValueError(f"{f}: missing field {e}") from None
+        raise DesignError(f"{f}: missing field {e}") from None
     except (TypeError, ValueError) as e:
-        raise ValueError(f"{f}: {e}") from None
+        raise DesignError(f"{f}: {e}") from None
     return LoadedDesign(doc, params, fd, ctl)
 
 
@@ -397,6 +415,38 @@ def _limit_summary(limit_rows: list[dict]) -> dict:
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
                plant: str = "two-track") -> dict:
+    """``evstab design``: the whole job, written into ``out`` (see the module notes).
+
+    Parameters
+    ----------
+    vehicle : str
+        Bundled vehicle name or TOML path: what the design believes (the nominal model).
+    out : str or pathlib.Path
+        Design folder to write (created when the outputs are written; a job that fails leaves
+        none).
+    quick : bool
+        22 model-error cases and 12 IPOPT iterations instead of 170 and 25.
+    executor : str
+        ``local`` (process pool) or ``dask``.
+    scheduler : str, optional
+        Dask scheduler address (``tcp://host:8786``); None with ``dask``: a local cluster.
+    workers : int, optional
+        Worker processes (default the CPU count).
+    command : str, optional
+        The command line recorded in ``design.json``.
+    progress : bool
+        Progress bars on stderr.
+    log : callable
+        Receives the phase lines (default :func:`print`).
+    plant : str
+        The plant the sweep, the tuning and the limit manoeuvres run on (``two-track``,
+        ``bicycle``, ``bicycle-roll``, ``commonroad-mb:N``).
+
+    Returns
+    -------
+    dict
+        The ``design.json`` document.
+    """
     from .report import write_report
     from .tuning import SIGMA_MIN, BOUNDS
     t_start = time.perf_counter()

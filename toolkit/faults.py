@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from evstab.plants.errors import SettingsError
 
 
 def _rows_in(cols, t0, t1):
@@ -78,7 +79,7 @@ class FrozenGps:
         fixes = np.flatnonzero(np.isfinite(cols["gps_course"]))
         before = fixes[cols["t"][fixes] < self.t0]
         if not len(before):
-            raise ValueError(f"frozen GPS at t = {self.t0} s: no fix before it to repeat")
+            raise SettingsError(f"frozen GPS at t = {self.t0} s: no fix before it to repeat")
         last = before[-1]
         rows = _fix_rows(cols, self.t0, self.t1)
         for name in ("gps_course", "gps_speed", "gps_hdop", "gps_sats", "gps_heading"):

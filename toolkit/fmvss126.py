@@ -30,6 +30,7 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import ramp_steer, sine_with_dwell
 
 from .simulator import RolloverError, simulate
+from evstab.plants.errors import DataError
 
 SPEED = 80 / 3.6
 HANDWHEEL_RATE = np.deg2rad(13.5)
@@ -73,7 +74,7 @@ def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np
     a = zero_phase(np.asarray(ay, float), 6.0, fs)
     above = np.nonzero(np.abs(hw) >= np.deg2rad(5.0))[0]
     if len(above) == 0:
-        raise ValueError("no steer of 5 deg or more: not a sine-with-dwell run")
+        raise DataError("no steer of 5 deg or more: not a sine-with-dwell run")
     k0 = above[0]
     pre = (t >= t[k0] - 0.5 - 0.25) & (t < t[k0] - 0.25)
     if pre.sum() > 10:
@@ -141,7 +142,7 @@ def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, 
         k_end = np.argmax(ay >= 0.375 * G) if np.any(ay >= 0.375 * G) else len(ay)
         sel[k_end:] = False
         if sel.sum() < 10:
-            raise ValueError(f"{p.name}: the slowly increasing steer never reached 0.375 g on mu = {mu}")
+            raise DataError(f"{p.name}: the slowly increasing steer never reached 0.375 g on mu = {mu}")
         slope, icpt = np.polyfit(hw[sel], ay[sel], 1)
         vals.append(np.degrees((0.3 * G - icpt) / slope))
     return float(np.mean(vals))
@@ -150,13 +151,41 @@ def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, 
 def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu: float | None = None,
                plant: str = "two-track", seed: int = 0, a_deg: float | None = None, quick: bool = False,
                design=None, compiled: bool = True):
-    """The sine-with-dwell series. Returns (A in deg, rows, verdict).
+    """The FMVSS 126 sine-with-dwell series at 80 km/h.
 
-    ``controller`` is ``none`` (the car alone), ``yaw-pi``, ``two-dof`` or ``two-dof-true``, run in
-    the stability loop (:func:`toolkit.closed_loop.loop_step`); ``design`` a
-    :class:`controllers.two_dof.TwoDofDesign` (default the paper's) or a design folder's
-    :class:`toolkit.firmware.ecu.EcuDesign`. ``compiled``: one compiled rollout per run (False: the
-    numpy evaluation of the same step).
+    Parameters
+    ----------
+    p : VehicleParams
+        The vehicle (needs ``steering_ratio``); on a ``commonroad-mb`` plant, what the ECU believes.
+    controller : str
+        ``none`` (the car alone), ``yaw-pi``, ``two-dof`` or ``two-dof-true``, run in the stability
+        loop (:func:`toolkit.closed_loop.loop_step`).
+    estimator : str or FilterDesign
+        The ECU's filter (``dakf`` default).
+    mu : float, optional
+        Road friction [-]; default the vehicle's. The ECU is not told it.
+    plant : str
+        ``two-track`` (default), ``bicycle``, ``bicycle-roll`` or ``commonroad-mb:N``.
+    seed : int
+        Seeds the sensor noise.
+    a_deg : float, optional
+        ``A`` [deg hand-wheel]; default from the slowly increasing steer (:func:`find_a`).
+    quick : bool
+        Only the first two amplitudes at or above 5 A.
+    design : TwoDofDesign or EcuDesign, optional
+        The controller design (default the paper's gains for ``p``) or a design folder's ECU.
+    compiled : bool
+        One compiled rollout per run (False: the numpy evaluation of the same step).
+
+    Returns
+    -------
+    a_deg : float
+        ``A`` [deg hand-wheel].
+    rows : list of dict
+        One per run: amplitude [deg hand-wheel], direction, yaw-rate ratios [%] at COS + 1.0 and
+        1.75 s, lateral displacement [m], pass, failed criteria, rollover time [s] (NaN: none).
+    verdict : dict
+        ``pass`` and the failed criteria over the series, with what was run.
     """
     mu = p.mu if mu is None else mu
     a_deg = find_a(p, plant, mu, seed=seed) if a_deg is None else a_deg

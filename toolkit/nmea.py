@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from evstab.plants.errors import EvstabError
+from evstab.plants.errors import SettingsError
 
 KNOT = 1852.0 / 3600.0
 """One knot in m/s."""
@@ -202,7 +203,7 @@ def write_nmea(path, t, course, speed, *, hdop=None, sats=None, start: float = 1
     for k in rows:
         ts = round(start + float(t[k]), 2)
         if not 0 <= ts < 86400:
-            raise ValueError(f"write_nmea: fix at t = {t[k]!r} s falls outside the day of 'start'")
+            raise SettingsError(f"write_nmea: fix at t = {t[k]!r} s falls outside the day of 'start'")
         h, rem = divmod(ts, 3600)
         m, sec = divmod(rem, 60)
         hms = f"{int(h):02d}{int(m):02d}{sec:05.2f}"

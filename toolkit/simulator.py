@@ -128,6 +128,19 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         The controller design (default seed 003's gains for ``nominal``); an
         :class:`~toolkit.firmware.ecu.EcuDesign` (a design folder's ECU) replaces filter and
         controller as a whole.
+
+    Returns
+    -------
+    SimResult
+        Time ``t`` [s] and named signals: ``truth`` (plant states and outputs, SI, ISO 8855),
+        ``measurements`` (sensor readings), ``commands`` (driver and, in the loop, the ECU's
+        commands, estimates and references), ``disturbances``; ``meta`` (vehicle, plant, seed,
+        step, events). :meth:`SimResult.write_csv` writes the drive log.
+
+    Raises
+    ------
+    SimulationError
+        The plant left what it can represent (``RolloverError``: the car rolled over).
     """
     from . import closed_loop as cl
     from .estimation.spec import FilterDesign

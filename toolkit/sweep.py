@@ -39,6 +39,7 @@ from .closed_loop import EXTRA, loop_spec, program
 from .estimation import design_filter
 from .estimation.spec import FilterDesign, NoiseSettings
 from .stability import estimator_loop
+from evstab.plants.errors import SettingsError
 
 SPIN_BETA = np.deg2rad(20.0)
 """A rollout whose true sideslip exceeds this [rad] has lost the car (not bounded)."""
@@ -318,7 +319,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
             if cluster is not None:
                 cluster.close()
     else:
-        raise ValueError(f"unknown executor '{executor}'; known: local, dask")
+        raise SettingsError(f"unknown executor '{executor}'; known: local, dask")
     bar.close()
     return [row for rs in results for row in rs]
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from evstab.plants.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,7 @@ def fuzzy(t_samples, y_samples, t, window: int = 15, s: ClusterSettings = Cluste
     ts, ys, t = (np.asarray(a, float) for a in (t_samples, y_samples, t))
     n = len(ts)
     if n < 4:
-        raise ValueError(f"fuzzy interpolation needs at least 4 samples, got {n}")
+        raise DataError(f"fuzzy interpolation needs at least 4 samples, got {n}")
     out = np.empty(len(t))
     seg = np.clip(np.searchsorted(ts, t) - 1, 0, n - 2)  # sample stretch [ts[seg], ts[seg + 1])
     half = window // 2

@@ -43,6 +43,7 @@ from evstab.plants import TRUTH
 from . import closed_loop, sweep
 from .compiled import CFunction, cache_key, compile_library
 from .sweep import B_SCALE, E_SCALE, R_SCALE, U_WEIGHT, Case, DesignPoint, SweepConfig
+from evstab.plants.errors import SettingsError
 
 SIGMA_MIN = 0.01
 """Smallest decay rate [1/s] the multi-rate loop must keep on every tuning case (time constant <= 100 s)."""
@@ -97,7 +98,7 @@ class RolloutCost:
     def __call__(self, phi: np.ndarray, run, rest: np.ndarray) -> tuple[float, np.ndarray]:
         U, z0, pv = run
         if U.shape[0] != self.n:
-            raise ValueError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
+            raise SettingsError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
         if self.cf is not None:
             # casadi matrices are column-major: a C-contiguous (samples x inputs) array is the
             # (inputs x samples) matrix the function takes, without a copy

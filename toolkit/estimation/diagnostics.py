@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.special  # not scipy.stats: importing it costs a second on every `evstab estimate`
+from evstab.plants.errors import DataError
 
 
 def _chi2_sf(x, k):
@@ -67,7 +68,7 @@ def whiteness(residuals, lags: int | None = None, alpha: float = 0.05) -> Whiten
     n = len(e)
     m = int(lags) if lags is not None else min(20, n // 5)
     if m < 1 or n < 3 * m:
-        raise ValueError(f"whiteness: {n} residuals are too few for {m} lags (at least 3 per lag)")
+        raise DataError(f"whiteness: {n} residuals are too few for {m} lags (at least 3 per lag)")
     rho = autocorrelation(e, m)
     k = np.arange(1, m + 1)
     q = float(n * (n + 2) * np.sum(rho ** 2 / (n - k)))
@@ -93,7 +94,7 @@ def nis_consistency(nis, alpha: float = 0.05) -> NisConsistency:
     v = v[np.isfinite(v)]
     n = len(v)
     if n < 1:
-        raise ValueError("nis_consistency: no innovations")
+        raise DataError("nis_consistency: no innovations")
     return NisConsistency(n, float(np.mean(v)), float(_chi2_ppf(alpha / 2, n) / n),
                           float(_chi2_ppf(1 - alpha / 2, n) / n))
 

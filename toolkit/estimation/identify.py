@@ -27,6 +27,7 @@ import numpy as np
 
 from evstab.plants import VehicleParams
 from evstab.plants.params import G
+from evstab.plants.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ def _samples(p, t, speed, steer, yaw_rate, beta, ay, yaw_moment, rows, accel, ba
     rdot = np.gradient(rs, t)
     if accel:
         if ay is None:
-            raise ValueError("cornering_stiffness: accel=True needs the lateral acceleration")
+            raise DataError("cornering_stiffness: accel=True needs the lateral acceleration")
         a_y = np.asarray(ay, float)
     else:
         a_y = v * r
@@ -93,7 +94,7 @@ def cornering_stiffness(p: VehicleParams, t, speed, steer, yaw_rate, beta, *, ay
     (al_f, f_f, sf), (al_r, f_r, sr) = _samples(p, t, speed, steer, yaw_rate, beta, ay, yaw_moment, rows, accel,
                                                 bank, min_slip, min_speed, smooth)
     if sf.sum() < 10 or sr.sum() < 10:
-        raise ValueError(f"cornering_stiffness: too few samples with slip above {np.degrees(min_slip):.2f} deg "
+        raise DataError(f"cornering_stiffness: too few samples with slip above {np.degrees(min_slip):.2f} deg "
                          f"(front {int(sf.sum())}, rear {int(sr.sum())}; at least 10 each): the run must turn")
     cf, r2f = _slope(al_f[sf], f_f[sf])
     cr, r2r = _slope(al_r[sr], f_r[sr])
@@ -110,7 +111,7 @@ def cornering_stiffness_online(p: VehicleParams, t, speed, steer, yaw_rate, beta
     import scipy.signal
 
     if not 0 < forgetting <= 1:
-        raise ValueError(f"cornering_stiffness_online: forgetting must be in (0, 1], got {forgetting!r}")
+        raise DataError(f"cornering_stiffness_online: forgetting must be in (0, 1], got {forgetting!r}")
     out = []
     for al, f, s in _samples(p, t, speed, steer, yaw_rate, beta, kwargs.get("ay"), kwargs.get("yaw_moment"),
                              kwargs.get("rows"), kwargs.get("accel", False), kwargs.get("bank"),

@@ -46,6 +46,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from evstab.plants.errors import SettingsError
 
 FLAGS = ("fault_gps_spike", "fault_gps_sats", "fault_gps_frozen", "fault_gps_time", "fault_gyro_stuck",
          "fault_gyro_bias", "fault_speed_dropout")
@@ -74,9 +75,9 @@ class MonitorSettings:
                      "resume_tolerance", "gps_min_speed"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"monitor setting '{name}' must be a finite number > 0, got {v!r}")
+                raise SettingsError(f"monitor setting '{name}' must be a finite number > 0, got {v!r}")
         if int(self.gyro_stuck_samples) < 2:
-            raise ValueError(f"monitor setting 'gyro_stuck_samples' must be >= 2, got {self.gyro_stuck_samples!r}")
+            raise SettingsError(f"monitor setting 'gyro_stuck_samples' must be >= 2, got {self.gyro_stuck_samples!r}")
 
 
 @dataclass

@@ -76,7 +76,28 @@ def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
 
 def export_design(design_dir, out_dir, formats=FORMATS, precision: str = "float64",
                   command: str | None = None) -> list[Path]:
-    """Write the requested formats of ``design_dir`` into ``out_dir``; returns the paths written."""
+    """Export a design folder as firmware and calibration files.
+
+    Parameters
+    ----------
+    design_dir : str or pathlib.Path
+        An ``evstab design`` folder (or its ``design.json``).
+    out_dir : str or pathlib.Path
+        Folder to write into (created if needed); each file is written under a temporary name
+        and renamed when complete.
+    formats : sequence of str
+        Any of ``c`` (``evstab_firmware.h``/``.c`` and the ``evstab_replay.c`` harness),
+        ``json`` (``evstab_gains.json``), ``a2l``, ``cdfx``; default all.
+    precision : str
+        ``float64`` or ``float32``: the C type and the A2L record layouts.
+    command : str, optional
+        The command line recorded in the gain set's provenance.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+    """
     files = render(gain_set(design_dir, command), formats, precision)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -141,7 +141,7 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
         sched = SpeedSchedule(tuple(float(v) for v in s["axis"]["values"]),
                               tuple(tuple(float(v) for v in r["values"]) for r in s["rows"]))
         if [r["name"] for r in s["rows"]] != list(ROWS):
-            raise ValueError(f"rows must be {', '.join(ROWS)} in that order")
+            raise GainSetError(f"rows must be {', '.join(ROWS)} in that order")
         field = "controller"
         ctl = TwoDofDesign(params, schedule=sched, **{k: (math.inf if v is None else v)
                                                       for k, v in doc["controller"].items()})
@@ -154,7 +154,7 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
         d = _apply_calibration(d, cal)
         field = "state"
         if doc["state"]["size"] != d.n_state:
-            raise ValueError(f"size {doc['state']['size']} does not match the design's {d.n_state}")
+            raise GainSetError(f"size {doc['state']['size']} does not match the design's {d.n_state}")
     except KeyError as e:
         raise GainSetError(f"{where}: field '{field}': missing {e}") from None
     except (TypeError, ValueError, AttributeError) as e:
@@ -168,7 +168,7 @@ def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
     cal = d.calibration()
     missing = [c.name for c in cal if c.name not in values]
     if missing:
-        raise ValueError(f"no value for {', '.join(missing)}")
+        raise GainSetError(f"no value for {', '.join(missing)}")
     ctl = dataclasses.replace(d.controller, **{c.name: float(values[c.name]) for c in cal if c.owner == "controller"})
     noise = dataclasses.replace(d.filter.noise, **{c.name: float(values[c.name]) for c in cal if c.owner == "noise"})
     filt: FilterDesign = dataclasses.replace(d.filter, noise=noise)

@@ -27,6 +27,7 @@ from evstab.plants.backend import NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
 from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
+from ..logio import LogFormatError
 
 CHUNK = 2000
 LOG_COLUMNS = ("ay", "yaw_moment", "gps_speed", "gps_hdop", "gps_sats", "steer_driver", "steer_limited_last",
@@ -73,7 +74,7 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = N
         w = get(f"wheel_speed_{side}")
         if w is None or not np.all(np.isfinite(w)):
             if wheel_radius is None:
-                raise ValueError(f"the log has no (finite) wheel_speed_{side} column; give the ECU's wheel radius")
+                raise LogFormatError(f"the log has no (finite) wheel_speed_{side} column; give the ECU's wheel radius")
             fill = col["speed"] / wheel_radius
             w = fill if w is None else np.where(np.isfinite(w), w, fill)
         col[f"wheel_speed_{side}"][:] = w
