@@ -1,0 +1,83 @@
+"""The studies the other tests do not run, each in its quick form, each held to what its table is
+for (the claims the docs make from it). About 80 s in all."""
+
+import csv
+
+import numpy as np
+import pytest
+
+
+def _rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _run(name, out):
+    import importlib
+    mod = importlib.import_module(f"evstab.studies.{name}")
+    import inspect
+    kw = {"quick": True} if "quick" in inspect.signature(mod.main).parameters else {}
+    mod.main(out, **kw)
+    return out
+
+
+def test_sensor_faults_every_injected_fault_is_flagged(tmp_path):
+    rows = _rows(_run("sensor_faults", tmp_path) / "faults.csv")
+    assert rows[0]["fault"] == "none" and int(rows[0]["rows flagged"]) == 0  # no false alarm on a clean log
+    for r in rows[1:]:
+        if r["flags"] == "-":  # the same fault with its detector switched off (the study's contrast row)
+            assert int(r["rows flagged"]) == 0, r["fault"]
+        else:
+            assert int(r["rows touched"]) > 0 and int(r["flagged inside"]) > 0, r["fault"]
+
+
+def test_robustness_the_paper_filter_is_the_one_with_the_flaw(tmp_path):
+    # seed 003's DAKF (dakf-paper) has an unobservable direction (docs/estimators.md); evstab's dakf
+    # does not: on the exact model the paper filter's sideslip error is several times dakf's
+    rows = _rows(_run("estimation_robustness", tmp_path) / "robustness.csv")
+    by = {(r["scenario"], r["nominal_stiffness"], r["method"]): float(r["beta_rms_deg"]) for r in rows}
+    exact = [k for k in by if k[1] == "exact" and k[2] == "dakf"]
+    assert exact
+    for scen, nom, _ in exact:
+        assert by[(scen, nom, "dakf-paper")] > 3.0 * by[(scen, nom, "dakf")], scen
+
+
+def test_dual_antenna_estimates_the_bank(tmp_path):
+    rows = _rows(_run("estimation_002", tmp_path) / "dual_antenna.csv")
+    da = [r for r in rows if r["filter"] == "dual-antenna"]
+    assert len(da) >= 2
+    for r in da:
+        # the bank is observable with a third antenna's roll: mean estimate within 0.25 deg of the
+        # road's (measured 0.13 deg off at -5 deg; the body's roll noise is 0.3 deg per fix)
+        assert abs(float(r["bank_estimate_mean_deg"]) - float(r["bank_deg"])) < 0.25, r
+
+
+def test_seed_001_table_i_is_reproduced_at_5_hz(tmp_path):
+    rows = _rows(_run("estimation_001", tmp_path) / "table_i.csv")
+    r5 = next(r for r in rows if float(r["gps_rate_hz"]) == 5.0)
+    # the paper's sideslip standard deviation at 5 Hz, from its own noise figures: 5 % (its table
+    # prints 2-3 significant digits)
+    assert float(r5["sigma_beta_deg"]) == pytest.approx(float(r5["paper_sigma_beta_deg"]), rel=0.05)
+
+
+def test_two_stage_and_double_layer_tables(tmp_path):
+    rows = _rows(_run("estimation_000", tmp_path / "000") / "dlc.csv")
+    for r in rows:  # every filter tracks the double lane change's sideslip to a fraction of it
+        assert float(r["beta_err_rms_deg"]) < 0.5 * float(r["true_beta_max_deg"]), r
+    rows = _rows(_run("estimation_004", tmp_path / "004") / "double_layer.csv")
+    for r in rows:  # layer 2's roll within 0.15 deg (seed 004 Fig. 9: about 0.1 deg)
+        assert float(r["roll_err_layer2_deg"]) < 0.15, r
+
+
+def test_intersample_errors_are_finite_and_small(tmp_path):
+    rows = _rows(_run("estimation_intersample", tmp_path) / "intersample.csv")
+    vals = np.array([[float(r["conventional_rms_deg"]), float(r["amrkf_rms_deg"])] for r in rows])
+    assert len(rows) >= 4 and np.all(np.isfinite(vals)) and vals.max() < 0.5
+
+
+def test_control_limits_default_controller_does_no_harm(tmp_path):
+    rows = _rows(_run("control_limits", tmp_path) / "limits_summary.csv")
+    for r in rows:
+        assert "(worse)" not in r["2-DOF default"], r
+        if r["case"].startswith("fmvss126"):
+            assert r["2-DOF default"].endswith("PASS"), r
