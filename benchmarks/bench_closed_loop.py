@@ -70,6 +70,26 @@ def main(argv=None):
     print(f"closed loop, 10 s at 1 kHz: evstab compiled {best * 1e3:.1f} ms per run ({per_c * 1e6:.2f} us/step); "
           f"python-control nlsys + input_output_response {per_ref * 1e6:.0f} us/step over {args.ref_seconds:g} s "
           f"-> ratio {per_ref / per_c:.0f}x (target 250x, <= 5 ms per run); yaw-rate difference {diff:.1e} rad/s")
+    # python-control's own linear interconnection of the same loop: the loop step's Jacobian at
+    # straight running (toolkit.stability.loop_linearisation, a fix every sample: one matrix per
+    # sample), as a discrete-time ss, its initial-condition response over the same 10 s
+    from evstab.controllers.two_dof import TwoDofDesign
+    from evstab.toolkit.estimation import design_filter
+    from evstab.toolkit.stability import loop_linearisation
+    lin = loop_linearisation(TwoDofDesign(p.as_nominal()), design_filter("dakf", p), 25 / 3.6, true_params=p)
+    A = lin.monodromy
+    k = A.shape[0]
+    lsys = control.ss(A, np.zeros((k, 1)), np.eye(k), np.zeros((k, 1)), dt=1e-3)
+    tl = np.arange(n) * 1e-3
+    x0 = np.full(k, 1e-3)
+    t0 = time.perf_counter()
+    control.initial_response(lsys, tl, x0)
+    per_lin = (time.perf_counter() - t0) / n
+    print(f"python-control linear ss of the same loop (its {k}-state feedback core at 25 km/h, linearised by "
+          f"evstab), initial_response over 10 s: {per_lin * 1e6:.2f} us/step (evstab compiled nonlinear / linear "
+          f"= {per_c / per_lin:.2f})")
+    from _yardstick import yardstick_line
+    print(yardstick_line(per_c * 1e9, "closed loop per step"))
 
 
 if __name__ == "__main__":

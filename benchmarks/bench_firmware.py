@@ -160,6 +160,9 @@ def main() -> None:
                                       check=True).stdout.split()[0])
             print(f"  {precision} {label:24s} evstab_step {ns:7.1f} ns  (replay / C = {ref / ns:5.1f}x, "
                   f"numpy / C = {ref_np / ns:7.0f}x; target <= 100 ns)")
+            if precision == "float64" and not defs:
+                from _yardstick import yardstick_line
+                print("  " + yardstick_line(ns, "float64 calibratable evstab_step"))
         rep = out / "evstab_replay"
         subprocess.run([cc, "-std=c99", "-O2", "-o", str(rep), str(out / "evstab_firmware.c"),
                         str(out / "evstab_replay.c"), "-lm"], check=True)

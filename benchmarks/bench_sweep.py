@@ -73,6 +73,8 @@ def main() -> None:
     print(f"compiled sweep ({args.plant}): {args.cases} cases x {2 * sw.MANEUVER_DURATION:g} s at 1 kHz on "
           f"{args.workers} worker(s): {t_sweep:.2f} s ({t_sweep / steps * 1e9:.0f} ns per loop step and case, "
           f"wall; target <= 2 s)")
+    from _yardstick import yardstick_line
+    print(yardstick_line(t_sweep / steps * 1e9, "sweep per loop step and case (wall, all workers)"))
     import resource
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
     child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker

@@ -1,0 +1,107 @@
+"""The benchmarks' yardstick: a hand-written dense 5-state Kalman step in plain C (gcc -O2).
+
+Predict ``x = F x``, ``P = F P F' + Q`` and one scalar update (``S = H P H' + R``, gain,
+``P = P - K H P``) on dense 5 x 5 matrices: about the arithmetic of the filter core a stability ECU runs
+every millisecond. It is compiled and timed in the calling process (the timing loop is in C,
+``clock_gettime`` around ``n`` steps, best of ``repeats``), so that every benchmark can print its
+own per-step figure as a multiple of it, on the same machine in the same run. None without a C
+compiler.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+_SRC = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <time.h>
+#define N 5
+
+static void step(double x[N], double P[N * N], const double F[N * N], const double Q[N * N],
+                 const double H[N], double R, double z)
+{
+    double xn[N], FP[N * N], Pn[N * N], PH[N], K[N];
+    int i, j, k;
+    for (i = 0; i < N; ++i) {
+        xn[i] = 0.0;
+        for (j = 0; j < N; ++j) xn[i] += F[i * N + j] * x[j];
+    }
+    for (i = 0; i < N; ++i)
+        for (j = 0; j < N; ++j) {
+            FP[i * N + j] = 0.0;
+            for (k = 0; k < N; ++k) FP[i * N + j] += F[i * N + k] * P[k * N + j];
+        }
+    for (i = 0; i < N; ++i)
+        for (j = 0; j < N; ++j) {
+            double s = Q[i * N + j];
+            for (k = 0; k < N; ++k) s += FP[i * N + k] * F[j * N + k];
+            Pn[i * N + j] = s;
+        }
+    double S = R, innov = z;
+    for (i = 0; i < N; ++i) {
+        PH[i] = 0.0;
+        for (j = 0; j < N; ++j) PH[i] += Pn[i * N + j] * H[j];
+        S += H[i] * PH[i];
+        innov -= H[i] * xn[i];
+    }
+    for (i = 0; i < N; ++i) {
+        K[i] = PH[i] / S;
+        x[i] = xn[i] + K[i] * innov;
+    }
+    /* P = Pn - K (H Pn) (the symmetric Pn: H Pn = PH') */
+    for (i = 0; i < N; ++i)
+        for (j = 0; j < N; ++j) P[i * N + j] = Pn[i * N + j] - K[i] * PH[j];
+}
+
+double yardstick_ns(long n, int repeats, double *sink)
+{
+    double best = 1e300;
+    for (int r = 0; r < repeats; ++r) {
+        double x[N] = {0}, P[N * N] = {0}, F[N * N] = {0}, Q[N * N] = {0}, H[N] = {1, 0, 1, 0, 0};
+        for (int i = 0; i < N; ++i) {
+            P[i * N + i] = 1.0;
+            Q[i * N + i] = 1e-6;
+            F[i * N + i] = 1.0;
+            if (i + 1 < N) F[i * N + i + 1] = 1e-3;
+        }
+        struct timespec t0, t1;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        for (long k = 0; k < n; ++k) step(x, P, F, Q, H, 1e-4, 1e-3 * (double)(k % 97));
+        clock_gettime(CLOCK_MONOTONIC, &t1);
+        double ns = ((double)(t1.tv_sec - t0.tv_sec) * 1e9 + (double)(t1.tv_nsec - t0.tv_nsec)) / (double)n;
+        if (ns < best) best = ns;
+        *sink += x[0] + P[0];
+    }
+    return best;
+}
+"""
+
+
+def yardstick_ns(n: int = 200_000, repeats: int = 5) -> float | None:
+    """ns per step of the hand-written C Kalman step (best of ``repeats`` runs of ``n`` steps)."""
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        src, lib = Path(tmp) / "yardstick.c", Path(tmp) / "yardstick.so"
+        src.write_text(_SRC)
+        subprocess.run([cc, "-std=c99", "-O2", "-shared", "-fPIC", "-o", str(lib), str(src)], check=True,
+                       capture_output=True)
+        dll = ctypes.CDLL(str(lib))
+        dll.yardstick_ns.restype = ctypes.c_double
+        dll.yardstick_ns.argtypes = [ctypes.c_long, ctypes.c_int, ctypes.POINTER(ctypes.c_double)]
+        sink = ctypes.c_double(0.0)
+        return float(dll.yardstick_ns(n, repeats, ctypes.byref(sink)))
+
+
+def yardstick_line(per_step_ns: float, what: str) -> str:
+    """The line every benchmark prints: its per-step figure against the yardstick."""
+    y = yardstick_ns()
+    if y is None:
+        return "yardstick: no C compiler, no comparison"
+    return (f"yardstick: hand-written dense 5-state Kalman step in C (gcc -O2) {y:.0f} ns per step in this run; "
+            f"{what} {per_step_ns:.0f} ns = {per_step_ns / y:.1f}x it")
