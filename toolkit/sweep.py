@@ -176,10 +176,16 @@ def cost_terms(Y: np.ndarray, E: np.ndarray) -> dict:
             "ms_nz": float(np.mean(E[:, ie["yaw_moment"]] ** 2))}
 
 
+def cost_of(ms_r, ms_b, ms_est, ms_nz, nz_max):
+    """The cost of one rollout from its mean squares: yaw-rate tracking, sideslip tracking, sideslip
+    estimation, yaw moment. Plain arithmetic, so numbers and casadi expressions alike (the sweep's
+    rows and the tuning's differentiable objective are this one formula)."""
+    return ms_r / R_SCALE**2 + ms_b / B_SCALE**2 + ms_est / E_SCALE**2 + U_WEIGHT * ms_nz / nz_max**2
+
+
 def cost_value(terms: dict, nz_max: float) -> float:
-    """The cost of one rollout from its mean squares (the tuning's objective uses the same formula)."""
-    return (terms["ms_r"] / R_SCALE**2 + terms["ms_b"] / B_SCALE**2 + terms["ms_est"] / E_SCALE**2
-            + U_WEIGHT * terms["ms_nz"] / nz_max**2)
+    """The cost of one rollout from its mean squares (:func:`cost_terms`)."""
+    return float(cost_of(terms["ms_r"], terms["ms_b"], terms["ms_est"], terms["ms_nz"], nz_max))
 
 
 def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bool, float]:

@@ -42,7 +42,7 @@ from evstab.plants import TRUTH
 
 from . import closed_loop, sweep
 from .compiled import CFunction, cache_key, compile_library
-from .sweep import B_SCALE, E_SCALE, R_SCALE, U_WEIGHT, Case, DesignPoint, SweepConfig
+from .sweep import Case, DesignPoint, SweepConfig
 from evstab.plants.errors import SettingsError
 
 SIGMA_MIN = 0.01
@@ -77,7 +77,7 @@ def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
     e_b = Ys[it["beta"], :] - Es[ie["beta_ref"], :]
     nz = Es[ie["yaw_moment"], :]
     ms = [ca.sumsqr(e) / n for e in (e_est, e_r, e_b, nz)]
-    cost = ms[1] / R_SCALE**2 + ms[2] / B_SCALE**2 + ms[0] / E_SCALE**2 + U_WEIGHT * ms[3] / nz_max**2
+    cost = sweep.cost_of(ms[1], ms[2], ms[0], ms[3], nz_max)
     grad = ca.jacobian(cost, phi)
     return ca.Function("tune_cost", [phi, U, z0, pv, rest], [cost, grad])
 
