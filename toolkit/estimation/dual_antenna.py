@@ -40,7 +40,8 @@ def bank_estimate(p, roll_total, speed, yaw_rate):
 
 N = 6
 STATE_SIZE = N + N * N + 1
-NEEDS = ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll")
+NEEDS = ("ay", "roll_rate", "gps_speed", "gps_heading")
+"""Columns the filter needs; ``gps_roll`` (a third antenna's total roll) is used where present."""
 
 
 def initial_state(d: FilterDesign) -> np.ndarray:

@@ -64,9 +64,11 @@ LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 :mod:`toolkit.estimation.kalman`."""
 METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
-                  "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading", "gps_roll"),
+                  "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading"),
                   "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}
-"""Drive-log columns a method needs beyond the schema's required ones."""
+"""Drive-log columns a method needs beyond the schema's required ones (``dual-antenna`` uses a third
+antenna's ``gps_roll`` when the log has it, and runs on the heading alone, the common installation,
+when it does not)."""
 CHI2_1DOF_999 = 10.827566170662733
 """99.9 % quantile of the chi-square distribution with one degree of freedom."""
 
