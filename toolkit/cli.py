@@ -8,6 +8,7 @@ expected; nothing half-written is left behind.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 
 import numpy as np
@@ -383,9 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="evstab", description="Stability-control design for in-wheel-motor EVs.")
     from evstab import __version__
     ap.add_argument("--version", action="version", version=f"evstab {__version__}")
-    sub = ap.add_subparsers(dest="command", required=True)
-    _add = sub.add_parser
-    sub.add_parser = lambda *a, **k: _add(*a, formatter_class=_Help, **k)
+    sub = ap.add_subparsers(dest="command", required=True,
+                            parser_class=functools.partial(argparse.ArgumentParser, formatter_class=_Help))
     sp = sub.add_parser("vehicles", help="list the bundled vehicle parameter sets")
     sp.set_defaults(func=cmd_vehicles)
     sp = sub.add_parser("simulate", help="simulate a manoeuvre and write a drive-log CSV")

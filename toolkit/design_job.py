@@ -37,13 +37,13 @@ from evstab.controllers.schedule import SpeedSchedule
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.errors import DesignError
 
 from . import sweep as sw
 from .analysis import SPEEDS_KMH, speed_grid
 from .estimation.spec import FilterDesign, NoiseSettings
 from .logio import atomic_write
 from .stability import estimator_loop, nominal_loop
-from evstab.plants.errors import DesignError
 
 FORMAT = "evstab-design/1"
 
@@ -403,7 +403,7 @@ def _limit_summary(limit_rows: list[dict]) -> dict:
     none = by["no control"]
     out = {}
     for name, rs in by.items():
-        j = lm.judge(rs, none) if name != "no control" else lm.judge(none, none)
+        j = lm.judge(rs, none)
         out[name] = {"fmvss126": {f"{r['plant']} mu {r['mu']:g}": f"{r['runs_passed']}/{r['runs']}" for r in rs
                                   if r["kind"] == "fmvss126"},
                      "fmvss126_pass": j["fmvss126_pass"], "limit_runs_held": j["limit_runs_passed"],
@@ -459,8 +459,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         clock["last"] = now
     out = Path(out)
     if out.exists() and not out.is_dir():
-        from evstab.plants.errors import EvstabError
-        raise EvstabError(f"{out}: exists and is not a folder; --out names the design folder to write")
+        raise DesignError(f"{out}: exists and is not a folder; --out names the design folder to write")
     params = load_vehicle(vehicle)
     cfg = sw.SweepConfig(params, plant=plant)
     cases = sw.sweep_cases(quick=quick, plant=plant)
@@ -491,9 +490,9 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
               "limit_constraint": "no worse than no control on every limit manoeuvre (FMVSS 126 criteria run by "
                                   "run; peak sideslip within max(1.5 x no control, 3 deg), under 10 deg where no "
                                   "control slides), as many limit runs held as the paper design, no sweep case "
-                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else a step "
-                                  "back towards the paper design (1, 1/2, 1/4, 1/8 of the way in log space), else "
-                                  "the paper design unchanged",
+                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else the "
+                                  "accepted point nearest the candidate on the way back to the paper design "
+                                  "(bisection on the step in log space, to 1/8), else the paper design unchanged",
               "cost": "mean over the standard manoeuvres of ms(r - r_ref)/(1 deg/s)^2 + ms(beta - beta_ref)/"
                       "(0.5 deg)^2 + ms(beta_hat - beta)/(0.5 deg)^2 + 0.1 ms(N_z)/N_z,max^2"}
     cmd = command or "evstab design --vehicle " + shlex.quote(vehicle) + (" --quick" if quick else "")

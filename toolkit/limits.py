@@ -17,8 +17,8 @@ every one of them (:func:`no_worse`): on FMVSS 126 every criterion the uncontrol
 a run, the design meets in that run; in the sideslip cases the peak stays within
 ``max(1.5 x the uncontrolled peak, 3 deg)`` where the uncontrolled car keeps its sideslip
 under :data:`SPIN_DEG`, and under ``SPIN_DEG`` where it does not. That is a constraint: a design that
-breaks it is not chosen, however small its cost (:func:`rank_key` orders designs by admissibility,
-then by limit results, then by the sweep's stable cases, then by the cost).
+breaks it is not chosen, however small its cost (the design job's selection:
+:func:`toolkit.design_job._limit_constrained`).
 """
 
 from __future__ import annotations
@@ -167,13 +167,6 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
             total += 1
     return {"admissible": not worse, "worse_than_none": worse, "limit_runs_passed": passed, "limit_runs": total,
             "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
-
-
-def rank_key(limits: dict, stable_cases: int, worst_cost: float) -> tuple:
-    """Sort key, best first: admissible (no worse than no control on every limit case), FMVSS 126
-    passed, limit runs that hold the car, the sweep's stable cases, then the worst-case cost."""
-    return (not limits["admissible"], not limits["fmvss126_pass"], -limits["limit_runs_passed"], -stable_cases,
-            worst_cost)
 
 
 def public(rows: list[dict]) -> list[dict]:

@@ -172,7 +172,7 @@ def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], desi
         elif not w["linear_stable"]:
             what = f"the sampled loop with the estimator is unstable (spectral radius {w['spectral_radius']:.4g})"
         else:
-            what = (f"yaw-rate tracking error {w['yaw_rate_rms_err'] * 57.29578:.3g} deg/s RMS, sideslip estimation "
+            what = (f"yaw-rate tracking error {np.degrees(w['yaw_rate_rms_err']):.3g} deg/s RMS, sideslip estimation "
                     f"error {w['beta_rms_deg']:.3g} deg RMS, peak sideslip {w['beta_max_deg']:.3g} deg")
         lost = sum(1 for r in rows.values() if not r["stable"])
         lines.append(f"Weakest: {_case_text(w)}, cost {fmt(w['cost'])}: {what}"
@@ -184,7 +184,7 @@ def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], desi
             peaks[k] = max(peaks.get(k, 0.0), abs(r["beta"]))
     if peaks:
         (mu, man), b = max(peaks.items(), key=lambda kv: kv[1])
-        lines.append(f"Largest sideslip of the {tuned} design in the time responses below: {57.29578 * b:.2f} deg "
+        lines.append(f"Largest sideslip of the {tuned} design in the time responses below: {np.degrees(b):.2f} deg "
                      f"({man} at 80 km/h on mu {mu:g}).")
     return lines
 
@@ -315,9 +315,6 @@ def build(data: dict) -> Doc:
         D.figure(f"poles_{plane}", fig, title)
 
     D.h(2, "Model-error sweep")
-    by = {}
-    for r in sweep:
-        by.setdefault(r["design"], {})[r["case_id"]] = r
     grid = [r for r in sweep if r["group"] in ("stiffness",)]
     cfs = sorted({r["cf_scale"] for r in grid})
     crs = sorted({r["cr_scale"] for r in grid})

@@ -204,12 +204,12 @@ N_ARGS = 150
 @given(data=st.data())
 def test_fuzzed_command_lines(tmp_path, capsys, data):
     """Random command lines: status 0 with an output, or 2 with an error message and nothing written."""
-    import sys
+    import shutil
     log = tmp_path / "log.csv"
     log.write_text(VALID)
     out = tmp_path / "out.csv"
     if out.exists():  # tmp_path is shared by the examples of one test
-        out.unlink() if out.is_file() else __import__("shutil").rmtree(out)
+        out.unlink() if out.is_file() else shutil.rmtree(out)
     cmd = data.draw(st.sampled_from(sorted(ARGS) + ["nonsense"]))
     argv = [cmd]
     if cmd in ("estimate", "score-swd", "convert"):
@@ -237,7 +237,6 @@ def test_fuzzed_command_lines(tmp_path, capsys, data):
         assert "error" in cap.err and not out.exists(), (argv, cap.err[-500:])
     OUTCOMES_ARGS[rc] = OUTCOMES_ARGS.get(rc, 0) + 1
     OUTCOMES_ARGS[(cmd, rc)] = OUTCOMES_ARGS.get((cmd, rc), 0) + 1
-    sys.stdout.flush()
 
 
 OUTCOMES_ARGS: dict = {}
@@ -246,7 +245,6 @@ OUTCOMES_ARGS: dict = {}
 def test_the_command_line_fuzz_ran_both_ways():
     if not OUTCOMES_ARGS:  # run alone (-k): nothing to count
         return
-    print(OUTCOMES_ARGS)
     assert OUTCOMES_ARGS.get(0, 0) > 0 and OUTCOMES_ARGS.get(2, 0) > 50, OUTCOMES_ARGS
 
 
