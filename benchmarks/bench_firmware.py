@@ -36,7 +36,7 @@ from evstab.toolkit.compiled import compiler
 from evstab.toolkit.design_job import basic_design_document
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.firmware.csource import write_inputs_csv
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUT_NAMES
+from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import ecu_from_design, export_design
 from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
 from evstab.toolkit.simulator import simulate
@@ -44,7 +44,7 @@ from evstab.toolkit.simulator import simulate
 def _timer_source() -> str:
     """The timing harness, its input rows read in :data:`toolkit.firmware.ecu.INPUTS` order."""
     assign = "\n".join(f"        in[k].{name} = {'(int)' if ctype == 'int' else ''}v[{i}];"
-                       for i, (name, _, ctype, _) in enumerate(INPUTS))
+                       for i, (name, ctype) in enumerate((s.name, s.ctype) for s in INPUTS.signals))
     return TIMER.replace("N_INPUTS", str(len(INPUTS))).replace("ASSIGN", assign)
 
 
@@ -123,7 +123,11 @@ def sizes(obj: Path) -> dict:
     return acc
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--md", help="also write the docs' tables (firmware.md, firmware_agreement.md) to this folder")
+    args = ap.parse_args(argv)
     cc = compiler()
     if cc is None:
         raise SystemExit("bench_firmware: no C compiler")
@@ -148,6 +152,7 @@ def main() -> None:
           f"calibration scalars, schedule {len(d.schedule.inv_speed)} points x 9 rows")
     print(f"reference in this process: evstab replay (casadi-generated C, {prog.backend}) {ref:8.1f} ns/step; "
           f"numpy step {ref_np / 1000:8.1f} us/step")
+    timing, agreement, size_row = {}, [], {}
     for precision in ("float64", "float32"):
         out = tmp / precision
         export_design(design, out, ("c",), precision)
@@ -160,6 +165,7 @@ def main() -> None:
                                       check=True).stdout.split()[0])
             print(f"  {precision} {label:24s} evstab_step {ns:7.1f} ns  (replay / C = {ref / ns:5.1f}x, "
                   f"numpy / C = {ref_np / ns:7.0f}x; target <= 100 ns)")
+            timing[(precision, bool(defs))] = ns
             if precision == "float64" and not defs:
                 from _yardstick import yardstick_line
                 print("  " + yardstick_line(ns, "float64 calibratable evstab_step"))
@@ -168,7 +174,10 @@ def main() -> None:
                         str(out / "evstab_replay.c"), "-lm"], check=True)
         lines = subprocess.run([str(rep), str(inputs)], capture_output=True, text=True, check=True).stdout.splitlines()
         Y = np.loadtxt(lines[1:], delimiter=",")
-        diff = {name: float(np.abs(Y[:, i] - Y_ref[:, i]).max()) for i, name in enumerate(OUTPUT_NAMES)}
+        got, want = OUTPUTS.columns(Y), OUTPUTS.columns(Y_ref)
+        diff = {name: float(np.abs(got[name] - want[name]).max()) for name in OUTPUTS}
+        agreement.append([precision, f"sine lane change 60 km/h, 2 s GPS outage, {n} steps",
+                          f"{diff['beta']:.2g} rad", f"{diff['steer_cmd']:.2g} rad", f"{diff['yaw_moment_cmd']:.2g} N m"])
         print(f"  {precision} agreement with evstab replay over {n} steps: |d beta| {diff['beta']:.2e} rad, "
               f"|d steer_cmd| {diff['steer_cmd']:.2e} rad, |d yaw_moment_cmd| {diff['yaw_moment_cmd']:.2e} N m")
         obj = out / "evstab_firmware.o"
@@ -180,9 +189,29 @@ def main() -> None:
         frame = stack.get("evstab_step", 0) + max(stack.get("evstab_ecu_fix", 0), stack.get("evstab_ecu_nofix", 0),
                                                   stack.get("evstab_schedule", 0))
         berkeley = subprocess.run(["size", str(obj)], capture_output=True, text=True, check=True).stdout.splitlines()
+        size_row[precision] = (f"{sz['text']} / {sz['rodata']} / {sz['data']} / {sz['bss']} B", f"{frame} B")
         print(f"  {precision} footprint (size -A, -O2): text {sz['text']} B, rodata {sz['rodata']} B, data "
               f"{sz['data']} B (the volatile calibration objects), bss {sz['bss']} B; stack <= {frame} B; "
               f"size: {berkeley[-1].split()[:4]} (text data bss dec)")
+    if args.md:
+        from _yardstick import yardstick_ns
+        from evstab.studies._common import write_markdown
+        md = Path(args.md)
+        md.mkdir(parents=True, exist_ok=True)
+        y = yardstick_ns()
+        write_markdown(md / "firmware.md", ["", "float64", "float32"], [
+            ["`evstab_step`, calibration in memory (`static const volatile`)",
+             *(f"{timing[(p, False)]:.0f} ns" for p in ("float64", "float32"))],
+            ["`evstab_step`, calibration folded (`static const`)",
+             *(f"{timing[(p, True)]:.0f} ns" for p in ("float64", "float32"))],
+            ["evstab replay (casadi-generated C, per step) in the same process", f"{ref:.0f} ns", ""],
+            ["numpy step in the same process", f"{ref_np / 1000:.0f} us", ""],
+            ["yardstick: hand-written dense 5-state Kalman step in C, gcc -O2, same run",
+             "-" if y is None else f"{y:.0f} ns", ""],
+            ["`size -A`: text / rodata / data / bss", size_row["float64"][0], size_row["float32"][0]],
+            ["stack of `evstab_step` and its deepest callee", size_row["float64"][1], size_row["float32"][1]]])
+        write_markdown(md / "firmware_agreement.md", ["precision", "log", "sideslip", "steer command",
+                                                      "yaw-moment command"], agreement)
 
 
 def _timed(fn) -> float:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import control
 import numpy as np
@@ -43,14 +44,16 @@ def main(argv=None) -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--ref-seconds", type=float, default=1.0, help="horizon run through python-control")
     ap.add_argument("--dt", type=float, default=1e-3)
+    ap.add_argument("--md", help="also write the table as Markdown to this file (the docs' table)")
     args = ap.parse_args(argv)
     p = load_vehicle(args.vehicle)
     n = int(round(args.seconds / args.dt))
     t = np.arange(n) * args.dt
     v = 60 / 3.6
-    cmd = np.zeros((len(COMMANDS), n))
-    cmd[0] = np.radians(2.0) * np.sin(2 * np.pi * 0.5 * t)
-    cmd[2], cmd[3] = v, 1.0
+    steer = np.radians(2.0) * np.sin(2 * np.pi * 0.5 * t)
+    cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=np.full(n, v), drive_on=np.ones(n),
+                        steer_rate=np.zeros(n))
+    rows = []
     w = default_disturbance(p.mu)
     print(f"vehicle {p.name}, {args.seconds:g} s at {1 / args.dt:g} Hz ({n} steps); "
           f"python-control over the first {args.ref_seconds:g} s")
@@ -77,10 +80,16 @@ def main(argv=None) -> None:
         print(f"{name:14s} {per_c * 1e6:9.3f} us {per_v * 1e6:9.3f} us {per_ref * 1e6:12.1f} us "
               f"{per_ref / per_c:8.0f}x {per_ref / per_v:8.0f}x   (final-state diff {err:.1e}; "
               f"backend {cp_c.backend}, {cp_c.n_sub} RK4 sub-step(s))")
-    multibody(args, cmd, t, n)
+        rows.append([name, f"{per_c * 1e6:.3g} us", f"{per_v * 1e6:.3g} us", f"{per_ref * 1e6:.0f} us",
+                     f"{per_ref / per_c:.0f}x", f"{per_ref / per_v:.0f}x"])
+    rows.append(multibody(args, cmd, t, n))
+    if args.md:
+        from evstab.studies._common import write_markdown
+        write_markdown(Path(args.md), ["plant", "evstab (C)", "evstab (casadi VM)", "python-control", "ratio C",
+                                       "ratio VM"], rows)
 
 
-def multibody(args, cmd, t, n) -> None:
+def multibody(args, cmd, t, n) -> list[str]:
     """commonroad-mb:1 compiled against the package's Python function stepped by RK4 in Python."""
     import vehiclemodels.utils.tire_model as tm
     from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
@@ -88,11 +97,11 @@ def multibody(args, cmd, t, n) -> None:
     from evstab.plants.backend import NUMPY
     model = get_plant("commonroad-mb:1")
     p = load_vehicle("commonroad-1")
-    v = cmd[2, 0]
+    c = COMMANDS.as_dict(cmd)
+    v = c["speed_ref"][0]
     x0 = model.initial_state(p, v)
     cp = CompiledPlant(model, p, args.dt, compile=True)
-    cmd = cmd.copy()
-    cmd[4] = np.diff(cmd[0], prepend=cmd[0, :1]) / args.dt
+    cmd = COMMANDS.pack(c, steer_rate=np.diff(c["steer"], prepend=c["steer"][:1]) / args.dt)
     w = default_disturbance()
     tc, (Xc, _) = best_of(lambda: cp.rollout(x0, cmd, w), 5)
     P = mb.package_parameters(1)
@@ -123,6 +132,7 @@ def multibody(args, cmd, t, n) -> None:
     print(f"{'commonroad-mb:1':14s} {per_c * 1e6:9.3f} us {'':>12s} {per_ref * 1e6:12.1f} us "
           f"{per_ref / per_c:8.0f}x {'':>9s}   (against the package's vehicle_dynamics_mb in Python; "
           f"final-state diff {err:.1e}; {cp.n_sub} RK4 sub-steps)")
+    return ["commonroad-mb:1", f"{per_c * 1e6:.3g} us", "", f"{per_ref * 1e6:.0f} us", f"{per_ref / per_c:.0f}x", ""]
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ holds its lateral model below 2 m/s (``NoiseSettings.min_speed``), where a parke
 steering at full lock has a kinematic sideslip of ~10 deg that it does not follow, and
 stability control has nothing to do there.
 
-Run: ``python benchmarks/bench_soak.py [--minutes 60] [--seed 1]``
+Run: ``python benchmarks/bench_soak.py [--minutes 60] [--seed 1 | --seeds 1 2 3] [--md FILE]``
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from evstab.plants import TRUTH, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import Maneuver
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit.closed_loop import CHUNK, EXTRA, SLOTS, latch_schedule, loop_spec, program
+from evstab.toolkit.closed_loop import CHUNK, EXTRA, INPUTS, latch_schedule_parts, loop_spec, program
 from evstab.toolkit.estimation import kalman
 
 DT = 1e-3
@@ -104,19 +104,38 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seeds", type=int, nargs="+", help="several soaks, one per seed (instead of --seed)")
+    ap.add_argument("--md", help="also write one table row per seed as Markdown to this file (the docs' table)")
     ap.add_argument("--limit", action="store_true",
                     help="the first version's drive: weave demand at the reference speed while braking (seed 1 "
                          "spins the car at t = 2432 s); reported, not accepted")
     args = ap.parse_args()
+    rows, ok = [], True
+    for seed in args.seeds or [args.seed]:
+        row, passed = soak(args, seed)
+        rows.append(row)
+        ok = ok and passed
+    if args.md:
+        from pathlib import Path
+        from evstab.studies._common import write_markdown
+        write_markdown(Path(args.md), ["seed", "segments (standstills)", "GPS outages",
+                                       "sideslip error RMS / max above 10 km/h", "yaw-rate error RMS / max",
+                                       "smallest eigenvalue of P", "acceptance"], rows)
+    if not ok and not args.limit:
+        raise SystemExit(1)
+
+
+def soak(args, seed: int) -> tuple[list[str], bool]:
+    """One soak run: prints its report, returns its table row and whether it passed."""
     p = load_vehicle("compact-ev")
     sensors = SensorConfig()
     spec = loop_spec(p, sensors=sensors, dt=DT)
     prog = program(spec)
-    speed, steer, fix, outages, segments = drive(args.minutes, args.seed, p, args.limit)
+    speed, steer, fix, outages, segments = drive(args.minutes, seed, p, args.limit)
     n = len(speed) // BLOCK * BLOCK
     est = prog.spec.ecu.ecu.filter
     lay = kalman.layout(est)
-    off_est = prog.sizes[0]
+    ecu_part = prog.spec.state_layout.slot("ecu")
     theta = prog.theta(mu_assumed=1.0)
     block_man = Maneuver("soak block", speed=float(speed[0]), duration=BLOCK * DT, steer=lambda t: np.zeros_like(t))
     dist = Disturbances(friction=Friction(mu=1.0))
@@ -126,15 +145,15 @@ def main() -> None:
     worst = {"asym": 0.0, "min_eig": np.inf, "max_std_beta_deg": 0.0}
     for b in range(n // BLOCK):
         sl = slice(b * BLOCK, (b + 1) * BLOCK)
-        U, z0, pv = prog.inputs(p, block_man, dist, sensors, seed=args.seed * 100_000 + b)
-        i_fix = U.shape[1] - 1 - 2 * SLOTS  # inputs: ..., fix, capture[SLOTS], emit[SLOTS]
-        U[:, 0], U[:, 1], U[:, 2] = steer[sl], speed[sl], 1.0
-        U[:, i_fix] = fix[sl]
-        U[:, i_fix + 1:] = latch_schedule(fix[sl].astype(float), 0.0, DT).T
+        U, z0, pv = prog.inputs(p, block_man, dist, sensors, seed=seed * 100_000 + b)
+        col = INPUTS.columns(U)  # views: writing them fills U
+        col["steer_driver"][:], col["speed_ref"][:], col["drive_on"][:] = steer[sl], speed[sl], 1.0
+        col["fix"][:] = fix[sl]
+        col["capture"][:], col["emit"][:] = latch_schedule_parts(fix[sl].astype(float), 0.0, DT)
         Y, E, z = prog.run(U, z0 if z is None else z, pv, theta, final_state=True)
         if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(E)) and np.all(np.isfinite(z))):
             raise SystemExit(f"soak: a signal stopped being a number in block {b} (t = {b * BLOCK * DT:.0f} s)")
-        P = z[off_est + lay["P"]:off_est + lay["P"] + est.n ** 2].reshape(est.n, est.n, order="F")
+        P = z[ecu_part][lay.slot("P")].reshape(est.n, est.n, order="F")
         asym = float(np.abs(P - P.T).max() / np.abs(P).max())
         eig = float(np.linalg.eigvalsh(0.5 * (P + P.T)).min())
         worst["asym"] = max(worst["asym"], asym)
@@ -143,17 +162,18 @@ def main() -> None:
         if asym > 1e-12 or eig <= 0:
             raise SystemExit(f"soak: covariance not symmetric positive definite after block {b}: asymmetry "
                              f"{asym:.2e}, smallest eigenvalue {eig:.3e}")
-        beta_err.append(E[:, EXTRA.index("beta_est")] - Y[:, TRUTH.index("beta")])
-        r_err.append(E[:, EXTRA.index("yaw_rate_est")] - Y[:, TRUTH.index("yaw_rate")])
-        v_log.append(Y[:, TRUTH.index("vx")])
-        yr_log.append(Y[:, TRUTH.index("yaw_rate")])
-        bt_log.append(Y[:, TRUTH.index("beta")])
+        e, y = EXTRA.columns(E), TRUTH.columns(Y)
+        beta_err.append(e["beta_est"] - y["beta"])
+        r_err.append(e["yaw_rate_est"] - y["yaw_rate"])
+        v_log.append(y["vx"])
+        yr_log.append(y["yaw_rate"])
+        bt_log.append(y["beta"])
     wall = time.perf_counter() - t_start
     be, re, vx = np.degrees(np.concatenate(beta_err)), np.degrees(np.concatenate(r_err)), np.concatenate(v_log)
     yr = np.concatenate(yr_log)
     out_s = sum(b_ - a for a, b_ in outages if a < n * DT)
     print(f"soak: {n * DT / 60:.1f} min at 1 kHz ({n} steps) of compact-ev, two-track plant, dakf + 2-DOF in the "
-          f"loop, seed {args.seed}: {len(segments)} segments ({sum(s[1] == 'straight' and s[2] == 0 for s in segments)}"
+          f"loop, seed {seed}: {len(segments)} segments ({sum(s[1] == 'straight' and s[2] == 0 for s in segments)}"
           f" standstills), speed 0-{vx.max() * 3.6:.0f} km/h, {len(outages)} GPS outages ({out_s:.0f} s, longest "
           f"{max((b_ - a for a, b_ in outages), default=0.0):.0f} s); wall {wall:.1f} s ({wall / n * 1e6:.2f} us per step)")
     print(f"  every signal finite; covariance after each 10 s block: asymmetry <= {worst['asym']:.1e} (relative), "
@@ -192,8 +212,13 @@ def main() -> None:
     ok = beta_max <= BETA_BOUND and rate_max <= RATE_BOUND
     print(f"  acceptance: sideslip error above {BOUND_SPEED:.0f} km/h max {beta_max:.2f} deg (bound {BETA_BOUND}), "
           f"yaw-rate error max {rate_max:.2f} deg/s (bound {RATE_BOUND}): {'PASS' if ok else 'FAIL'}")
-    if not ok and not args.limit:
-        raise SystemExit(1)
+    standstills = sum(sg[1] == "straight" and sg[2] == 0 for sg in segments)
+    row = [str(seed), f"{len(segments)} ({standstills})",
+           f"{len(outages)}, {out_s:.0f} s, longest {max((b_ - a for a, b_ in outages), default=0.0):.0f} s",
+           f"{np.sqrt(np.mean(be ** 2)):.3f} (all speeds) / {beta_max:.2f} deg",
+           f"{np.sqrt(np.mean(re ** 2)):.3f} / {rate_max:.2f} deg/s", f"{worst['min_eig']:.1e}",
+           "PASS" if ok else "FAIL"]
+    return row, ok
 
 
 if __name__ == "__main__":

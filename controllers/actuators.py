@@ -17,7 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from evstab.plants import VehicleParams
-from evstab.plants.backend import NUMPY, unpack
+from evstab.plants.backend import NUMPY
+from evstab.plants.model import torque_difference, yaw_moment_of
+from evstab.plants.signals import Layout, Signal
 
 
 @dataclass(frozen=True)
@@ -34,15 +36,30 @@ class ActuatorLimits:
     """Per-motor torque rate limit [N m/s]."""
 
 
-STATE = ("steer", "torque_diff")
-SIGNALS = ("steer_cmd", "yaw_moment_cmd", "t_mean", "dt")
-OUTPUTS = ("steer", "yaw_moment", "steer_limited", "yaw_moment_limited")
+STATE = Layout("actuator state", [
+    Signal("steer", "rad", "road-wheel angle of the steer actuator"),
+    Signal("torque_diff", "N m", "the rear motors' torque difference, T_rr - T_mean"),
+])
+SIGNALS = Layout("actuator commands", [
+    Signal("steer_cmd", "rad", "road-wheel angle command"),
+    Signal("yaw_moment_cmd", "N m", "yaw moment command"),
+    Signal("t_mean", "N m", "the driver's mean rear torque per wheel"),
+    Signal("dt", "s", "the period"),
+])
+OUTPUTS = Layout("actuator outputs", [
+    Signal("steer", "rad", "road-wheel angle applied"),
+    Signal("yaw_moment", "N m", "yaw moment the motors achieved"),
+    Signal("steer_limited", "-", "1 while the steer was at a limit"),
+    Signal("yaw_moment_limited", "-", "1 while the motors were at a limit"),
+])
+
 
 
 def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, sig, o=NUMPY):
     """One sample of the steer and motor actuators, numpy or casadi: ``(z, sig) -> (z_next, out)``."""
-    steer, t_diff = z[0], z[1]
-    s = unpack(sig, SIGNALS)
+    zs = STATE.unpack(z)
+    steer, t_diff = zs.steer, zs.torque_diff
+    s = SIGNALS.unpack(sig)
     target = o.fmin(o.fmax(s.steer_cmd, -lim.steer_max), lim.steer_max)
     rate = (target - steer) / lim.steer_tau
     rate_c = o.fmin(o.fmax(rate, -lim.steer_rate_max), lim.steer_rate_max)
@@ -51,7 +68,7 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
                               o.if_else(o.fabs(rate) > lim.steer_rate_max, 1.0, 0.0))
     # allocation (as :func:`allocate`): common torque kept, difference cut to the room left
     t_mean = o.fmin(o.fmax(s.t_mean, -torque_max), torque_max)
-    dt_req = s.yaw_moment_cmd * p.wheel_radius / p.track_rear
+    dt_req = torque_difference(s.yaw_moment_cmd, p.wheel_radius, p.track_rear)
     room = torque_max - o.fabs(t_mean)
     want = o.fmin(o.fmax(dt_req, -room), room)
     step_max = lim.torque_rate_max * s.dt
@@ -59,5 +76,6 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     cut = o.fabs(want - dt_req) > 1e-9 * o.fmax(1.0, o.fabs(dt_req))
     slow = o.fabs(t_diff_new - want) > 1e-9 * o.fmax(1.0, o.fabs(want))
     limited = o.if_else(cut, 1.0, o.if_else(slow, 1.0, 0.0))
-    achieved = t_diff_new * p.track_rear / p.wheel_radius
-    return o.stack([steer_new, t_diff_new]), o.stack([steer_new, achieved, steer_limited, limited])
+    achieved = yaw_moment_of(t_diff_new, p.wheel_radius, p.track_rear)
+    return STATE.pack(o=o, steer=steer_new, torque_diff=t_diff_new), \
+        OUTPUTS.pack(o=o, steer=steer_new, yaw_moment=achieved, steer_limited=steer_limited, yaw_moment_limited=limited)

@@ -37,9 +37,20 @@ from __future__ import annotations
 
 from evstab.plants import G
 from evstab.plants.backend import NUMPY
+from evstab.plants.signals import Layout, Signal
 
-STATE = ("active", "hold", "blend", "steer_correction", "mu_est", "steer_saturated", "yaw_moment_saturated",
-         "ay_demand", "slip_authority", "slip_lag")
+STATE = Layout("supervisor state", [
+    Signal("active", "-", "1 while the law is switched on"),
+    Signal("hold", "s", "time both errors have been below their off thresholds"),
+    Signal("blend", "-", "blend weight of the law's authority, 0-1"),
+    Signal("steer_correction", "rad", "applied steer correction"),
+    Signal("mu_est", "-", "friction estimate"),
+    Signal("steer_saturated", "-", "the ECU's own steer limit flag of the last period"),
+    Signal("yaw_moment_saturated", "-", "the ECU's own yaw-moment limit flag of the last period"),
+    Signal("ay_demand", "m/s^2", "the linear model's lateral-acceleration demand, lagged"),
+    Signal("slip_authority", "-", "the yaw moment's authority left by the rear wheels' slip, 0-1"),
+    Signal("slip_lag", "-", "the worse rear wheel's slip, lagged"),
+])
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
 the ECU's own limit flags of the last period, the linear model's lateral-acceleration demand
@@ -49,7 +60,9 @@ authority left by the rear wheels' slip [0-1], the worse rear wheel's slip throu
 
 
 def initial_state(d) -> list[float]:
-    return [0.0, 0.0, 1.0 if d.always_active else 0.0, 0.0, float(d.mu_max), 0.0, 0.0, 0.0, 1.0, 0.0]
+    return list(STATE.pack(active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
+                           mu_est=float(d.mu_max), steer_saturated=0.0, yaw_moment_saturated=0.0, ay_demand=0.0,
+                           slip_authority=1.0, slip_lag=0.0))
 
 
 def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY):
@@ -124,9 +137,12 @@ def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,
               o=NUMPY, beta_rate=None):
     """``(z_next, steer_cmd, nz_cmd, law_on)``: the commands after supervision, and whether the law's
-    integrators may run (0: hold them at 0). ``beta_rate``: the kinematic sideslip rate [rad/s] for
-    the phase-plane guard (None: no guard)."""
-    active, hold, blend, corr = z[0], z[1], z[2], z[3]
+    integrators may run (0: hold them at 0). ``z`` per :data:`STATE`; ``z_next`` a dict of the entries
+    this function updates (the friction and slip entries come from :func:`friction_estimate` and
+    :func:`slip_authority`). ``beta_rate``: the kinematic sideslip rate [rad/s] for the phase-plane
+    guard (None: no guard)."""
+    zs = STATE.unpack(z)
+    active, hold, blend, corr = zs.active, zs.hold, zs.blend, zs.steer_correction
     thr_r = (d.yaw_rate_deadband + d.yaw_rate_deadband_per_speed * o.fabs(speed)) * (1.0 - d.deadband_shrink * use)
     trusted = beta_std < d.beta_std_max
     excess = 0.0 * speed if beta_rate is None else phase_plane_excess(d, beta, beta_rate, trusted, o)
@@ -166,5 +182,6 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     nz_cmd = blend_next * nz_law
     law_on = o.if_else(blend_next > 0.0, 1.0, 0.0)
     corr_next = corr_next * law_on  # inactive: the correction restarts from 0
-    z_next = [active_next, hold_next, blend_next, corr_next, None, steer_sat, nz_sat, None, None, None]
+    z_next = {"active": active_next, "hold": hold_next, "blend": blend_next, "steer_correction": corr_next,
+              "steer_saturated": steer_sat, "yaw_moment_saturated": nz_sat}
     return z_next, steer_cmd, nz_cmd, law_on

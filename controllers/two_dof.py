@@ -37,9 +37,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from evstab.plants import G, VehicleParams
-from evstab.plants.backend import NUMPY, unpack
-from evstab.plants.bicycle import lateral_coefficients, lateral_matrices
+from evstab.plants.backend import NUMPY
+from evstab.plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
 from evstab.plants.errors import DesignError
+from evstab.plants.signals import Layout, Signal
 
 
 
@@ -201,10 +202,32 @@ class TwoDofDesign:
         return Bi, Bi @ self.kd, -Bi @ A @ self.kd, Bi @ A
 
 
-STATE = ("xi_beta", "xi_yaw_rate", "beta_ref", "yaw_rate_ref", "dist_beta", "dist_yaw_rate")
+STATE = Layout("controller state", [
+    Signal("xi_beta", "rad s", "integral of the sideslip error"),
+    Signal("xi_yaw_rate", "rad", "integral of the yaw-rate error"),
+    Signal("beta_ref", "rad", "the lagged sideslip reference"),
+    Signal("yaw_rate_ref", "rad/s", "the lagged yaw-rate reference"),
+    Signal("dist_beta", "rad/s", "the low-passed disturbance estimate d1"),
+    Signal("dist_yaw_rate", "rad/s^2", "the low-passed disturbance estimate d2"),
+])
 """Controller state: error integrals, the lagged reference, the low-passed disturbance estimates."""
-SIGNALS = ("speed", "steer_driver", "beta", "yaw_rate", "d1", "d2", "mu", "steer_limited", "yaw_moment_limited")
-OUTPUTS = ("steer", "yaw_moment", "beta_ref", "yaw_rate_ref")
+SIGNALS = Layout("controller signals", [
+    Signal("speed", "m/s", "vehicle speed"),
+    Signal("steer_driver", "rad", "the driver's road-wheel angle"),
+    Signal("beta", "rad", "estimated sideslip"),
+    Signal("yaw_rate", "rad/s", "estimated yaw rate"),
+    Signal("d1", "rad/s", "disturbance estimate on the sideslip equation"),
+    Signal("d2", "rad/s^2", "disturbance estimate on the yaw-rate equation"),
+    Signal("mu", "-", "friction the reference is limited with"),
+    Signal("steer_limited", "-", "1 while the steer command was limited"),
+    Signal("yaw_moment_limited", "-", "1 while the yaw moment was limited"),
+])
+OUTPUTS = Layout("controller outputs", [
+    Signal("steer", "rad", "front road-wheel angle command"),
+    Signal("yaw_moment", "N m", "direct yaw moment command"),
+    Signal("beta_ref", "rad", "sideslip reference"),
+    Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+])
 
 
 def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
@@ -214,12 +237,13 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     the largest yaw moment this period allows (default ``nz_max``; the ECU passes what the rear
     tyres' remaining grip allows, :func:`controllers.supervisor.yaw_moment_limit`).
     """
-    s = unpack(sig, SIGNALS)
+    s = SIGNALS.unpack(sig)
+    zs = STATE.unpack(z)
     v = s.speed
     vm = o.fmax(v, d.min_speed)
     beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22) = reference(d, vm, s.steer_driver, s.mu, o)
     lag = float(np.exp(-d.dt / d.reference_tau))
-    xb, xr = z[2], z[3]
+    xb, xr = zs.beta_ref, zs.yaw_rate_ref
     xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
     xb_next, xr_next = beta_ss + (xb - beta_ss) * lag, gamma_ss + (xr - gamma_ss) * lag
     # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d)
@@ -229,13 +253,13 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     if d.disturbance_rejection:
         if d.disturbance_filter_tau > 0:
             k = 1.0 - float(np.exp(-d.dt / d.disturbance_filter_tau))
-            dist_b, dist_r = z[4] + (s.d1 - z[4]) * k, z[5] + (s.d2 - z[5]) * k
+            dist_b, dist_r = zs.dist_beta + (s.d1 - zs.dist_beta) * k, zs.dist_yaw_rate + (s.d2 - zs.dist_yaw_rate) * k
         else:
             dist_b, dist_r = s.d1, s.d2
     else:
         dist_b, dist_r = 0.0 * v, 0.0 * v
     kb_, kr_ = d.k_beta, d.k_gamma
-    xi_b, xi_r = z[0], z[1]
+    xi_b, xi_r = zs.xi_beta, zs.xi_yaw_rate
     v1 = xb_dot - (a11 * xb + a12 * xr) + kb_ * e_b - (a11 * kb_ * xi_b + a12 * kr_ * xi_r) - dist_b
     v2 = xr_dot - (a21 * xb + a22 * xr) + kr_ * e_r - (a21 * kb_ * xi_b + a22 * kr_ * xi_r) - dist_r
     delta = v1 / b11
@@ -250,9 +274,9 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     # conditional integration: hold xi in a channel whose command is limited; reset at low speed
     xi_b_next = o.if_else(low, 0.0, o.if_else(s.steer_limited > 0.5, xi_b, xi_b + d.dt * e_b))
     xi_r_next = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, xi_r, xi_r + d.dt * e_r))
-    z_next = o.stack([xi_b_next, xi_r_next, xb_next, xr_next, o.if_else(low, 0.0, dist_b),
-                      o.if_else(low, 0.0, dist_r)])
-    return z_next, o.stack([delta, nz, xb, xr])
+    z_next = STATE.pack(o=o, xi_beta=xi_b_next, xi_yaw_rate=xi_r_next, beta_ref=xb_next, yaw_rate_ref=xr_next,
+                        dist_beta=o.if_else(low, 0.0, dist_b), dist_yaw_rate=o.if_else(low, 0.0, dist_r))
+    return z_next, OUTPUTS.pack(o=o, steer=delta, yaw_moment=nz, beta_ref=xb, yaw_rate_ref=xr)
 
 
 def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = True):
@@ -266,10 +290,7 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = Tr
     if d.schedule is not None:
         a11, a12, a21, a22, b11, b21, b22, kb, kg = d.schedule.values(vm, o)
     else:
-        L, g = p.wheelbase, p.stability_factor
-        den = 1.0 + g * vm * vm
-        kb = (1.0 - p.mass / (2.0 * L) * p.lf / (p.cornering_stiffness_rear * p.lr) * vm * vm) / den * p.lr / L
-        kg = vm / (L * den)
+        kb, kg = steady_state_gains(p, vm)
         a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
     beta_ss, gamma_ss = kb * steer_driver, kg * steer_driver
     if not limited:

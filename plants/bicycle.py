@@ -15,7 +15,7 @@ import numpy as np
 
 from .backend import ops_for, unpack
 from .lti import ContinuousLTI
-from .model import DISTURBANCES, TRUTH, PlantModel
+from .model import COMMANDS, DISTURBANCES, TRUTH, PlantModel
 from .params import G, VehicleParams
 from .errors import ModelError
 
@@ -68,7 +68,8 @@ def h(x, u, w, p: VehicleParams):
 def command_map(cmd, x, p: VehicleParams):
     """Common commands -> (steer, yaw_moment, vx): the speed reference is the speed."""
     o = ops_for(cmd, x)
-    return o.stack([cmd[0], cmd[1], cmd[2]])
+    c = COMMANDS.unpack(cmd)
+    return o.stack([c.steer, c.yaw_moment, c.speed_ref])
 
 
 def initial(p: VehicleParams, speed: float):

@@ -70,7 +70,7 @@ from .backend import ops_for, unpack
 from .commonroad_tire import (_lateral, _lateral_comb, _longitudinal, _longitudinal_comb, exact_sign,
                               smooth_sign)
 from .errors import ModelError
-from .model import DISTURBANCES, PlantModel
+from .model import COMMANDS, DISTURBANCES, PlantModel, torque_difference
 
 G_MB = 9.81
 """Gravity the package uses [m/s^2] (evstab's :data:`plants.params.G` is 9.80665)."""
@@ -449,14 +449,15 @@ class _Plant:
         ``T_rr - T_rl = 2 N_z R_w / t_r`` on top of the package's drivetrain.
         """
         o = ops_for(cmd, x)
-        steer, yaw_moment, speed_ref, drive_on, steer_rate = (cmd[i] for i in range(5))
+        c = COMMANDS.unpack(cmd)
+        steer, yaw_moment, speed_ref, drive_on, steer_rate = c.steer, c.yaw_moment, c.speed_ref, c.drive_on, c.steer_rate
         s = unpack(x, STATES)
         want = SPEED_KP * (speed_ref - s.vx) + SPEED_KI * s.speed_int
         accel = o.fmin(o.fmax(want, -ACCEL_MAX), ACCEL_MAX)
         # back-calculation anti-windup (tracking time 1 s): the integrator stops where the demand saturates
         err = drive_on * (speed_ref - s.vx + (accel - want) / SPEED_KI)
         accel = drive_on * accel
-        t_diff = yaw_moment * self.q.R_w / self.q.T_r
+        t_diff = torque_difference(yaw_moment, self.q.R_w, self.q.T_r)
         return o.stack([steer, steer_rate, accel, -t_diff, t_diff, err])
 
     def initial(self, p, speed: float):

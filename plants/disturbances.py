@@ -98,5 +98,5 @@ def disturbance_profile(d: Disturbances, t: np.ndarray) -> np.ndarray:
         out[DISTURBANCES.index("lateral_force")] = d.wind.force * env
         out[DISTURBANCES.index("yaw_moment_dist")] = d.wind.yaw_moment * env
     out[DISTURBANCES.index("bank")] = d.bank
-    out[DISTURBANCES.index("mu_fl"):DISTURBANCES.index("mu_rr") + 1] = d.friction.per_wheel(t)
+    out[DISTURBANCES.span("mu_fl", "mu_rr")] = d.friction.per_wheel(t)
     return out

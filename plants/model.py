@@ -18,25 +18,56 @@ from .backend import unpack
 from .errors import ModelError
 from .lti import ContinuousLTI
 from .params import VehicleParams
+from .signals import Layout, Signal
 
-COMMANDS = ("steer", "yaw_moment", "speed_ref", "drive_on", "steer_rate")
+COMMANDS = Layout("plant commands", [
+    Signal("steer", "rad", "front road-wheel angle"),
+    Signal("yaw_moment", "N m", "direct yaw moment"),
+    Signal("speed_ref", "m/s", "speed reference"),
+    Signal("drive_on", "-", "1 = hold speed with drive torque, 0 = coast"),
+    Signal("steer_rate", "rad/s", "rate of the road-wheel angle command"),
+])
 """Common commands every plant accepts (front road-wheel angle [rad], direct yaw
 moment [N m], speed reference [m/s], 1 = hold speed with drive torque / 0 = coast,
 rate of the road-wheel angle command [rad/s]: the feed-forward of a plant with a
 steering servo; plants that take the angle directly ignore it)."""
 
-DISTURBANCES = ("lateral_force", "yaw_moment_dist", "roll_moment_dist", "bank",
-                "mu_fl", "mu_fr", "mu_rl", "mu_rr")
+DISTURBANCES = Layout("disturbances", [
+    Signal("lateral_force", "N", "lateral force at the CG"),
+    Signal("yaw_moment_dist", "N m", "yaw moment"),
+    Signal("roll_moment_dist", "N m", "roll moment"),
+    Signal("bank", "rad", "road bank angle, + left side up"),
+    *(Signal(f"mu_{c}", "-", f"friction coefficient under the {c} wheel") for c in ("fl", "fr", "rl", "rr")),
+])
 """Common disturbance inputs: lateral force at the CG [N], yaw moment [N m], roll
 moment [N m], road bank angle [rad] (positive = left side up, pushes the car to
 the right), friction coefficient under each wheel [-]. Linear models ignore mu."""
 
-TRUTH = ("vx", "vy", "beta", "yaw_rate", "yaw", "x", "y", "ax", "ay", "roll", "roll_rate",
-         "wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
+TRUTH = Layout("plant outputs", [
+    Signal("vx", "m/s", "body longitudinal velocity"), Signal("vy", "m/s", "body lateral velocity"),
+    Signal("beta", "rad", "sideslip at the CG"), Signal("yaw_rate", "rad/s", "yaw rate"),
+    Signal("yaw", "rad", "yaw angle"), Signal("x", "m", "east position"), Signal("y", "m", "north position"),
+    Signal("ax", "m/s^2", "longitudinal acceleration"), Signal("ay", "m/s^2", "lateral acceleration"),
+    Signal("roll", "rad", "body roll"), Signal("roll_rate", "rad/s", "roll rate"),
+    *(Signal(f"wheel_speed_{c}", "rad/s", f"{c} wheel angular speed") for c in ("fl", "fr", "rl", "rr")),
+])
 """Named outputs of every plant (ISO 8855, SI): body velocities, sideslip at the CG,
 yaw rate and angle, position in the earth frame, kinematic accelerations of the CG
 in the road plane (``ax = vx' - vy r``, ``ay = vy' + vx r``), body roll and roll
 rate, wheel angular speeds [rad/s] (NaN where the model has no wheel radius)."""
+
+
+def torque_difference(yaw_moment, wheel_radius, track_rear):
+    """The rear wheels' torque difference ``T_rr - T_mean = T_mean - T_rl`` [N m] that makes
+    ``yaw_moment`` [N m]: ``N_z = (T_rr - T_rl) t_r / (2 R_w)`` (a wheel torque ``T`` is a force
+    ``T / R_w`` at the contact patch, ``t_r / 2`` from the centre line). The one torque split of
+    the plants, the actuators and the ECU."""
+    return yaw_moment * wheel_radius / track_rear
+
+
+def yaw_moment_of(torque_diff, wheel_radius, track_rear):
+    """The yaw moment [N m] a rear torque difference [N m] makes (the inverse of :func:`torque_difference`)."""
+    return torque_diff * track_rear / wheel_radius
 
 
 @dataclass(frozen=True)

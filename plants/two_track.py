@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from .backend import ops_for, smooth_abs, smooth_max, unpack
-from .model import DISTURBANCES, PlantModel
+from .model import COMMANDS, DISTURBANCES, PlantModel, torque_difference
 from .params import G, VehicleParams
 from .tires import combined_forces
 
@@ -161,12 +161,13 @@ def command_map(cmd, x, p: VehicleParams):
     """
     o = ops_for(cmd, x)
     s = unpack(x, STATES)
-    steer, yaw_moment, speed_ref, drive_on = cmd[0], cmd[1], cmd[2], cmd[3]
+    c = COMMANDS.unpack(cmd)
+    steer, yaw_moment, speed_ref, drive_on = c.steer, c.yaw_moment, c.speed_ref, c.drive_on
     resist = (0.5 * AIR_DENSITY * p.drag_coefficient * p.frontal_area * s.vx * smooth_abs(s.vx, 0.1, o)
               + p.rolling_resistance * p.mass * G * o.tanh(s.vx / 0.1))
     force = drive_on * (p.mass * SPEED_GAIN * (speed_ref - s.vx) + resist)
     t_mean = force * p.wheel_radius / 2.0
-    t_diff = yaw_moment * p.wheel_radius / p.track_rear
+    t_diff = torque_difference(yaw_moment, p.wheel_radius, p.track_rear)
     t_rl, t_rr = t_mean - t_diff, t_mean + t_diff
     if p.max_motor_torque is not None:
         lim = p.max_motor_torque

@@ -33,6 +33,24 @@ def write_table(rows: list[dict], path_csv: Path, path_md: Path | None = None, f
         atomic_write(path_md, lambda fh: fh.write(buf.getvalue()))
 
 
+def write_markdown(path_md: Path, header: list[str], rows: list[list]) -> None:
+    """A Markdown table (``header`` and rows of cells, as text) written atomically: the tables the
+    docs pages show (:mod:`evstab.studies.publish`)."""
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    atomic_write(path_md, lambda fh: fh.write("\n".join(lines) + "\n"))
+
+
+def pivot(rows: list[dict], index: list[str], column: str, cell) -> tuple[list[str], list[list]]:
+    """``rows`` (long form) as a table: one row per distinct ``index`` values, one column per distinct
+    ``column`` value (in order of appearance), ``cell(row)`` the text of each cell."""
+    cols = list(dict.fromkeys(r[column] for r in rows))
+    keys = list(dict.fromkeys(tuple(r[k] for k in index) for r in rows))
+    by = {(tuple(r[k] for k in index), r[column]): r for r in rows}
+    table = [list(k) + [cell(by[(k, c)]) if (k, c) in by else "-" for c in cols] for k in keys]
+    return list(index) + [str(c) for c in cols], table
+
+
 def save_figure(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
     atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=110), mode="wb")

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 
 from evstab.plants import load_vehicle
-from evstab.studies._common import cli, out_dir, write_table
+from evstab.studies._common import cli, out_dir, write_markdown, write_table
 from evstab.toolkit.design_job import run_design
 from evstab.toolkit.firmware.export import ecu_from_design
 from evstab.toolkit.fmvss126 import find_a, run_series
@@ -26,6 +26,8 @@ from evstab.toolkit.nominal import to_toml
 STIFFNESS_ERROR = 1.4
 CARS = (1, 3)
 
+
+CAR_NAMES = {"commonroad-mb:1": "Escort", "commonroad-mb:2": "BMW 320i", "commonroad-mb:3": "Vanagon"}
 
 def wrong_nominal(n: int):
     """The bundled nominal of set ``n`` with both cornering stiffnesses times :data:`STIFFNESS_ERROR`."""
@@ -58,7 +60,27 @@ def main(out, quick: bool = False) -> list[dict]:
                              "failed_criteria": " ".join(v["failed_criteria"]) or "-",
                              "runs_worse_than_none": harm if label != "none" else 0})
     write_table(rows, out / "mb_fmvss126_summary.csv", out / "mb_fmvss126_summary.md")
+    write_markdown(out / "mb_fmvss126_table.md", ["car", "mu", "A [deg hand-wheel]", "no control", "designed firmware"],
+                   table(rows))
     return rows
+
+
+def table(rows: list[dict]) -> list[list[str]]:
+    """The docs' table: per car and friction, runs passed and verdict without control and with the
+    designed firmware (the failed criteria named)."""
+    def cell(r):
+        verdict = "PASS" if r["pass"] else f"FAIL: {r['failed_criteria']}"
+        text = f"{r['runs_passed']} / {r['runs']}, {verdict}"
+        return f"**{text}**" if r["pass"] else text
+
+    out = []
+    for r in rows:
+        if r["controller"] != "none":
+            continue
+        ctl = next(c for c in rows if c["car"] == r["car"] and c["mu"] == r["mu"] and c["controller"] != "none")
+        out.append([f"{r['car']} ({CAR_NAMES.get(r['car'], '')})".replace(" ()", ""), f"{r['mu']:.1f}",
+                    f"{r['A_deg']:.1f}", cell(r), cell(ctl)])
+    return out
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import two_half_turns
 from evstab.plants.sensors import SensorConfig
-from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.studies._common import cli, out_dir, save_figure, write_markdown, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.diagnostics import nis_consistency, whiteness
 from evstab.toolkit.estimation.identify import cornering_stiffness
@@ -137,6 +137,13 @@ def main(out, quick: bool = False) -> list[dict]:
         r["vehicle"] = (f"compact-ev: m {p.mass:g} kg, Iz {p.yaw_inertia:g} kg m^2, lf {p.lf:g} m, lr {p.lr:g} m, "
                         f"C {p.cornering_stiffness_front:g}/{p.cornering_stiffness_rear:g} N/rad per tire")
     write_table(t1, out / "table_i.csv", out / "table_i.md", floatfmt="{:.4g}")
+    write_markdown(out / "table_i_table.md", ["GPS rate", "sigma_course, sigma_gyro (paper, input)",
+                                              "paper sigma_r, sigma_beta", "evstab a-priori sigma_r, sigma_beta",
+                                              "a-posteriori"],
+                   [[f"{r['gps_rate_hz']:g} Hz", f"{r['sigma_course_deg']:.4g} deg, {r['sigma_gyro_deg_s']:.4g} deg/s",
+                     f"{r['paper_sigma_r_deg_s']:.4g} deg/s, {r['paper_sigma_beta_deg']:.4g} deg",
+                     f"{r['sigma_r_deg_s']:.4f} deg/s, {r['sigma_beta_deg']:.4f} deg",
+                     f"{r['sigma_r_posterior_deg_s']:.4f}, {r['sigma_beta_posterior_deg']:.4f}"] for r in t1])
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -31,7 +31,7 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import dlc_000, ramp_steer, sine_lane_change, sine_with_dwell, \
     steer_for_lateral_acceleration
 from evstab.plants.sensors import SensorConfig
-from evstab.studies._common import cli, out_dir, write_table
+from evstab.studies._common import cli, out_dir, pivot, write_markdown, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
@@ -90,6 +90,10 @@ def main(out, quick: bool = False) -> list[dict]:
                                  "max_deg": float(np.abs(err[sel]).max()),
                                  "true_beta_max_deg": float(np.degrees(np.abs(log["beta_true"][sel]).max()))})
     write_table(rows, out / "estimation_mb.csv", out / "estimation_mb.md")
+    # the docs' table: RMS / RMS where |a_y| > 1 m/s^2 / max [deg], one column per drive
+    header, table = pivot(rows, ["car", "nominal", "method"], "drive",
+                          lambda r: f"{r['rms_deg']:.2f} / {r['rms_ay_above_1_deg']:.2f} / {r['max_deg']:.2f}")
+    write_markdown(out / "estimation_mb_table.md", header, table)
     return rows
 
 

@@ -197,7 +197,7 @@ ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_st
 
 
 def _replay(args):
-    from .firmware.ecu import OUTPUT_NAMES
+    from .firmware.ecu import OUTPUTS
     from .firmware.export import ecu_from_design
     from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
     from .logio import read_log
@@ -209,7 +209,7 @@ def _replay(args):
     U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
     prog = ecu_program(d)
     Y = prog.run(U)
-    _require_finite(args.log, log["t"], {name: Y[:, OUTPUT_NAMES.index(name)] for name in
+    _require_finite(args.log, log["t"], {name: OUTPUTS.columns(Y)[name] for name in
                                          ("beta", "yaw_rate", "steer_cmd", "yaw_moment_cmd")})
     return d, log, U, Y, prog.backend
 
@@ -226,34 +226,34 @@ def _require_finite(source, t, signals: dict) -> None:
 
 
 def _estimate_designed(args) -> int:
-    from .firmware.ecu import OUTPUT_NAMES
+    from .firmware.ecu import INPUTS, OUTPUTS
     from .logio import write_log_table
 
     if args.method != "dakf" or args.gps_latency != 0.0:
         raise EvstabError("--method and --gps-latency come from the design with --design; leave them out")
     d, log, U, Y, backend = _replay(args)
     cols = {"t": log["t"]}
-    cols.update({name: Y[:, OUTPUT_NAMES.index(name)] for name in ESTIMATE_COLUMNS})
+    cols.update({name: OUTPUTS.columns(Y)[name] for name in ESTIMATE_COLUMNS})
     write_log_table(args.out, cols)
     print(f"{d.filter.method} (designed, {args.design}) on {args.log}: {len(U)} samples, "
-          f"{int(U[:, 5].sum())} GPS fixes, {int(cols['gps_used'].sum())} used ({backend} backend) -> {args.out}")
+          f"{int(INPUTS.columns(U)['gps_valid'].sum())} GPS fixes, {int(cols['gps_used'].sum())} used ({backend} backend) -> {args.out}")
     return 0
 
 
 def cmd_replay(args) -> int:
     from .firmware.csource import write_inputs_csv
-    from .firmware.ecu import OUTPUT_NAMES
+    from .firmware.ecu import OUTPUTS
     from .logio import atomic_write, write_log_table
 
     d, log, U, Y, backend = _replay(args)
     cols = {"t": log["t"]}
-    cols.update({name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)})
+    cols.update(OUTPUTS.columns(Y))
     if args.inputs_out:
         atomic_write(args.inputs_out, lambda fh: write_inputs_csv(fh, U))
     write_log_table(args.out, cols)
-    i_n = OUTPUT_NAMES.index("yaw_moment_cmd")
+    i_n = OUTPUTS.index("yaw_moment_cmd")
     print(f"replay of {args.log} through {args.design}: {len(U)} samples ({backend} backend); max |steer_cmd| "
-          f"{np.degrees(np.abs(Y[:, OUTPUT_NAMES.index('steer_cmd')]).max()):.3f} deg, max |yaw_moment_cmd| "
+          f"{np.degrees(np.abs(OUTPUTS.columns(Y)['steer_cmd']).max()):.3f} deg, max |yaw_moment_cmd| "
           f"{np.abs(Y[:, i_n]).max():.1f} N m -> {args.out}")
     return 0
 

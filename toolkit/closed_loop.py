@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import casadi as ca
@@ -33,36 +34,86 @@ import numpy as np
 
 import evstab.controllers.supervisor as sup_mod
 import evstab.controllers.two_dof as ctl_mod
-from evstab.controllers.actuators import ActuatorLimits, actuator_law
+from evstab.controllers.actuators import (OUTPUTS as ACT_OUTPUTS, SIGNALS as ACT_SIGNALS, STATE as ACT_STATE,
+                                          ActuatorLimits, actuator_law)
 from evstab.controllers.baselines import STATE as YAW_PI_STATE
 from evstab.controllers.two_dof import TwoDofDesign
-from evstab.plants import DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
+from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.disturbances import Disturbances, disturbance_profile
 from evstab.plants.maneuvers import Maneuver
 from evstab.plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
+from evstab.plants.signals import Layout, Signal
 
 from .compiled import (CFunction, cache_key, compile_library, numeric_fields, param_vector, rk4_step, rk4_substeps,
                        symbolic_view, with_fields)
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
-from .firmware.ecu import INPUT_NAMES as ECU_INPUTS, OUTPUT_NAMES as ECU_OUTPUTS, EcuDesign
+from .firmware.ecu import INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign
 from .loop_ecu import CONTROLLERS, LoopEcu, LoopError, loop_ecu  # noqa: F401  (the loop's public names)
 
-NOISE = ("steer", "gyro", "roll_gyro", "accel_x", "accel_y", "wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr",
-         "speed", "gps_e", "gps_n", "heading")
-EXTRA = ("steer", "yaw_moment", "steer_driver", "yaw_moment_cmd", "beta_ref", "yaw_rate_ref", "beta_est",
-         "yaw_rate_est", "yaw_moment_limited", "steer_cmd", "steer_limited", "steer_limited_last",
-         "yaw_moment_limited_last", "steer_rate", "active", "mu_est")
+NOISE = Layout("loop noise", [Signal(k, "-", f"standard-normal draw of the {k} sensor's noise") for k in (
+    "steer", "gyro", "roll_gyro", "accel_x", "accel_y", "wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr", "speed",
+    "gps_e", "gps_n", "heading")])
+EXTRA = Layout("loop signals", [
+    Signal("steer", "rad", "road-wheel angle applied over the period"),
+    Signal("yaw_moment", "N m", "yaw moment the motors achieved"),
+    Signal("steer_driver", "rad", "the driver's road-wheel angle"),
+    Signal("yaw_moment_cmd", "N m", "the ECU's yaw moment command"),
+    Signal("beta_ref", "rad", "sideslip reference"),
+    Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+    Signal("beta_est", "rad", "estimated sideslip"),
+    Signal("yaw_rate_est", "rad/s", "estimated yaw rate"),
+    Signal("yaw_moment_limited", "-", "1 while the motors were at a limit"),
+    Signal("steer_cmd", "rad", "the ECU's road-wheel angle command"),
+    Signal("steer_limited", "-", "1 while the steer was at a limit"),
+    Signal("steer_limited_last", "-", "the steer limit flag the ECU was given"),
+    Signal("yaw_moment_limited_last", "-", "the motors' limit flag the ECU was given"),
+    Signal("steer_rate", "rad/s", "rate of the applied road-wheel angle"),
+    Signal("active", "-", "authority of the stability law"),
+    Signal("mu_est", "-", "the ECU's friction estimate"),
+])
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
-MEAS = ("steer", "yaw_moment", "yaw_rate", "roll_rate", "ax", "ay", "wheel_speed_fl", "wheel_speed_fr",
-        "wheel_speed_rl", "wheel_speed_rr", "speed", "gps_valid", "gps_fix", "gps_course", "gps_speed", "gps_heading")
+MEAS = Layout("loop readings", [
+    Signal("steer", "rad", "measured road-wheel angle"), Signal("yaw_moment", "N m", "yaw moment applied"),
+    Signal("yaw_rate", "rad/s", "gyro"), Signal("roll_rate", "rad/s", "roll gyro"),
+    Signal("ax", "m/s^2", "longitudinal accelerometer"), Signal("ay", "m/s^2", "lateral accelerometer"),
+    *(Signal(f"wheel_speed_{c}", "rad/s", f"{c} wheel speed") for c in ("fl", "fr", "rl", "rr")),
+    Signal("speed", "m/s", "speed from the non-driven wheels"), Signal("gps_valid", "-", "1 on a usable fix"),
+    Signal("gps_fix", "-", "1 on a sample with a fix"), Signal("gps_course", "rad", "GPS course over ground"),
+    Signal("gps_speed", "m/s", "GPS ground speed"), Signal("gps_heading", "rad", "dual-antenna heading"),
+])
 """The sensor readings the ECU was given (drive-log columns; GPS entries meaningful where ``gps_fix``)."""
-CASE = ("gyro_bias", "gyro_scale_error", "mu_assumed")
+CASE = Layout("case parameters", [
+    Signal("gyro_bias", "rad/s", "the gyro's bias"),
+    Signal("gyro_scale_error", "-", "the gyro's scale-factor error"),
+    Signal("mu_assumed", "-", "the friction the ECU's mu input gives"),
+])
 """Run-time parameters of a case after the ECU's calibration: the gyro's errors and the friction
 the ECU's reference assumes (an ECU input)."""
 SLOTS = 4
 """GPS fixes in flight at once (latched truth waiting for its latency to pass)."""
+SLOT = Layout("GPS slot", [Signal("yaw", "rad"), Signal("vx", "m/s"), Signal("vy", "m/s"), Signal("yaw_rate", "rad/s")])
+"""The truth a GPS fix in flight describes (latched when it is measured)."""
+GPS_SLOTS = Layout("GPS slots", [Signal(f"slot{j}", "-", "a fix in flight (SLOT)", SLOT.size) for j in range(SLOTS)])
+INPUTS = Layout("loop inputs", [
+    Signal("steer_driver", "rad", "the driver's road-wheel angle"),
+    Signal("speed_ref", "m/s", "speed reference"),
+    Signal("drive_on", "-", "1 = hold speed, 0 = coast"),
+    Signal("disturbances", "-", "disturbances (plants.DISTURBANCES)", DISTURBANCES.size),
+    Signal("noise", "-", "standard-normal sensor noise (NOISE)", NOISE.size),
+    Signal("fix", "-", "1 on a sample with a GPS fix"),
+    Signal("capture", "-", "one-hot: latch this sample's truth into slot j", SLOTS),
+    Signal("emit", "-", "one-hot: the fix arriving now is slot j's", SLOTS),
+])
+"""The loop's per-sample inputs."""
+APPLIED = Layout("applied commands", [
+    Signal("steer", "rad", "road-wheel angle applied over the last period"),
+    Signal("yaw_moment", "N m", "yaw moment achieved over the last period"),
+    Signal("steer_rate", "rad/s", "rate of the applied road-wheel angle"),
+])
+FLAGS = Layout("actuator flags", [Signal("steer_limited", "-", "last period's steer limit flag"),
+                                  Signal("yaw_moment_limited", "-", "last period's motor limit flag")])
 CHUNK = 1000
 
 
@@ -86,16 +137,32 @@ class LoopSpec:
     n_sub: int
     limits: ActuatorLimits = ActuatorLimits()
 
+    @functools.cached_property
+    def state_layout(self) -> Layout:
+        """Loop state: plant, ECU, actuators, applied commands (:data:`APPLIED`), limit flags
+        (:data:`FLAGS`), GPS slots (:data:`GPS_SLOTS`)."""
+        return Layout("loop state", [
+            Signal("plant", "-", "the plant's state", len(get_plant(self.plant).states)),
+            Signal("ecu", "-", "the ECU's state", self.ecu.n_state),
+            Signal("actuator", "-", "the actuators' state (controllers.actuators.STATE)", ACT_STATE.size),
+            Signal("applied", "-", "APPLIED", APPLIED.size),
+            Signal("flags", "-", "FLAGS", FLAGS.size),
+            Signal("slots", "-", "GPS_SLOTS", GPS_SLOTS.size),
+        ])
+
     @property
     def sizes(self) -> list[int]:
-        """Loop state: plant, ECU, actuators (2), applied steer / yaw moment / steer rate (3), limit
-        flags (2), GPS slots."""
-        nx = len(get_plant(self.plant).states)
-        return [nx, self.ecu.n_state, 2, 3, 2, 4 * SLOTS]
+        """The sizes of the parts of :attr:`state_layout`."""
+        return [s.size for s in self.state_layout.signals]
+
+    @functools.cached_property
+    def theta_layout(self) -> Layout:
+        """The run-time parameters: the ECU's calibration, then :data:`CASE`."""
+        return Layout("loop parameters", [Signal(n) for n in self.ecu.calibration_names()] + list(CASE.signals))
 
     @property
     def theta_names(self) -> tuple[str, ...]:
-        return self.ecu.calibration_names() + CASE
+        return tuple(self.theta_layout)
 
     def state_names(self) -> tuple[str, ...]:
         """Names of the loop-state entries (``plant.*``, ``filter.*``, ``controller.*``, ``actuator.*``,
@@ -105,80 +172,74 @@ class LoopSpec:
         ne, nc = self.ecu.sizes
         if ne:
             f = self.ecu.ecu.filter
-            lay = kal_mod.layout(f)
-            names += [f"filter.{s}" for s in f.states] + [f"filter.P{i}" for i in range(f.n * f.n)]
-            names += ["filter.rejects", "filter.eps", "filter.init"] + [f"filter.gain{i}" for i in range(f.n)]
-            names += [f"filter.cusum{i}" for i in range(lay["buf"] - lay["cusum"])]
-            names += [f"filter.buf{i}" for i in range(lay["size"] - lay["buf"])]
+            for s in kal_mod.layout(f).signals:
+                if s.name == "x":
+                    names += [f"filter.{k}" for k in f.states]
+                elif s.size == 1:
+                    names.append(f"filter.{s.name}")
+                else:
+                    names += [f"filter.{s.name}{i}" for i in range(s.size)]
         if nc:
             names += [f"controller.{s}" for s in (YAW_PI_STATE if self.ecu.kind == "yaw-pi" else ctl_mod.STATE)]
             if self.ecu.kind != "yaw-pi":
                 names += [f"supervisor.{s}" for s in sup_mod.STATE]
-        names += ["actuator.steer", "actuator.torque_diff", "applied.steer", "applied.yaw_moment",
-                  "applied.steer_rate", "flag.steer_limited", "flag.yaw_moment_limited"]
-        names += [f"slot{j}.{k}" for j in range(SLOTS) for k in ("yaw", "vx", "vy", "yaw_rate")]
+        names += [f"actuator.{k}" for k in ACT_STATE] + [f"applied.{k}" for k in APPLIED]
+        names += [f"flag.{k}" for k in FLAGS]
+        names += [f"{j}.{k}" for j in GPS_SLOTS for k in SLOT]
         if len(names) != sum(self.sizes):
             raise LoopError(f"loop state names ({len(names)}) do not match the loop state ({sum(self.sizes)})")
         return tuple(names)
 
 
 def n_inputs() -> int:
-    return 3 + len(DISTURBANCES) + len(NOISE) + 1 + 2 * SLOTS
-
-
-def _split(z, sizes):
-    parts, o = [], 0
-    for s in sizes:
-        parts.append(z[o:o + s])
-        o += s
-    return parts
+    return INPUTS.size
 
 
 def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     """One sample of the loop: ``(z, u, p, theta) -> (z_next, truth, extra, meas)``.
 
-    ``z`` per :attr:`LoopSpec.sizes`; ``u`` = (steer_driver, speed_ref, drive_on, disturbances,
-    standard-normal noise per :data:`NOISE`, fix, GPS capture and emit one-hots); ``sp`` the plant's
+    ``z`` per :attr:`LoopSpec.state_layout`; ``u`` per :data:`INPUTS`; ``sp`` the plant's
     parameters (a :class:`VehicleParams` or its symbolic view); ``theta`` per
     :attr:`LoopSpec.theta_names`. Returns the truth at the sample (:data:`plants.TRUTH`, with the
     commands of the last period), :data:`EXTRA` and :data:`MEAS`.
     """
-    x, z_ecu, z_act, applied, flags, slots = _split(z, spec.sizes)
-    steer_drv, speed_ref, drive_on = u[0], u[1], u[2]
-    nd = len(DISTURBANCES)
-    w = u[3:3 + nd]
-    i0 = 3 + nd
-    nzd = {k: u[i0 + i] for i, k in enumerate(NOISE)}
-    fix = u[i0 + len(NOISE)]
-    capture = [u[i0 + len(NOISE) + 1 + j] for j in range(SLOTS)]
-    emit = [u[i0 + len(NOISE) + 1 + SLOTS + j] for j in range(SLOTS)]
-    nc = len(spec.ecu.calibration_names())
-    cal = [theta[i] for i in range(nc)]
-    case = {k: theta[nc + i] for i, k in enumerate(CASE)}
+    zs = spec.state_layout.unpack(z)
+    x, z_ecu, z_act = zs.plant, zs.ecu, zs.actuator
+    applied, flags, slots = APPLIED.unpack(zs.applied), FLAGS.unpack(zs.flags), GPS_SLOTS.unpack(zs.slots)
+    ui = INPUTS.unpack(u)
+    steer_drv, speed_ref, drive_on, w = ui.steer_driver, ui.speed_ref, ui.drive_on, ui.disturbances
+    nzd = NOISE.as_dict(ui.noise)
+    fix = ui.fix
+    capture = [ui.capture[j] for j in range(SLOTS)]
+    emit = [ui.emit[j] for j in range(SLOTS)]
+    th = spec.theta_layout.as_dict(theta)
+    cal = [th[k] for k in spec.ecu.calibration_names()]
+    case = {k: th[k] for k in CASE}
     dt = spec.dt
 
     # 1. sensors sample the plant at the start of the period
-    cmd_prev = o.stack([applied[0], applied[1], speed_ref, drive_on, applied[2]])
+    cmd_prev = COMMANDS.pack(o=o, steer=applied.steer, yaw_moment=applied.yaw_moment, speed_ref=speed_ref,
+                             drive_on=drive_on, steer_rate=applied.steer_rate)
     y = model.h(x, model.command_map(cmd_prev, x, sp), w, sp)
-    tr = {name: y[i] for i, name in enumerate(TRUTH)}
-    now = [tr["yaw"], tr["vx"], tr["vy"], tr["yaw_rate"]]
+    tr = TRUTH.as_dict(y)
     # GPS latency: the truth a fix describes is latched into a slot when it is measured and read
     # out when the fix arrives (one-hot inputs computed from the fix times): exact for latencies of
     # whole samples, and a run-time input
-    gps = [0.0 * now[0]] * 4
-    nxt = []
-    for j in range(SLOTS):
-        held = [capture[j] * now[i] + (1.0 - capture[j]) * slots[4 * j + i] for i in range(4)]
-        nxt.extend(held)
-        gps = [gps[i] + emit[j] * held[i] for i in range(4)]
+    gps = {k: 0.0 * tr["yaw"] for k in SLOT}
+    nxt = {}
+    for j, name in enumerate(GPS_SLOTS):
+        before = SLOT.as_dict(getattr(slots, name))
+        held = {k: capture[j] * tr[k] + (1.0 - capture[j]) * before[k] for k in SLOT}
+        nxt[name] = SLOT.pack(held, o)
+        gps = {k: gps[k] + emit[j] * held[k] for k in SLOT}
     noise = {"steer": nzd["steer"], "gyro": nzd["gyro"], "roll_gyro": nzd["roll_gyro"], "accel_x": nzd["accel_x"],
              "accel_y": nzd["accel_y"], "wheel": [nzd[f"wheel_{c}"] for c in ("fl", "fr", "rl", "rr")],
              "speed": nzd["speed"], "gps_e": nzd["gps_e"], "gps_n": nzd["gps_n"], "heading": nzd["heading"]}
     sensors = with_fields(spec.sensors, gyro_bias=case["gyro_bias"], gyro_scale_error=case["gyro_scale_error"])
     radius = sp.wheel_radius if "wheel_radius" in spec.fields else None
-    inp = {"steer": applied[0], "yaw_moment": applied[1], "bank": w[DISTURBANCES.index("bank")]}
-    m = readings(tr, inp, noise, tuple(gps), fix, sensors, radius, o)
-    meas = o.stack([m[k] for k in MEAS])
+    inp = {"steer": applied.steer, "yaw_moment": applied.yaw_moment, "bank": DISTURBANCES.unpack(w).bank}
+    m = readings(tr, inp, noise, tuple(gps[k] for k in SLOT), fix, sensors, radius, o)
+    meas = MEAS.pack({k: m[k] for k in MEAS}, o)
 
     # 2. the ECU step
     ecu = spec.ecu
@@ -192,37 +253,51 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "ay": m["ay"], "gps_valid": valid, "gps_course": valid * m["gps_course"],
              "gps_speed": fix * m["gps_speed"], "gps_hdop": o.if_else(fix > 0.5, spec.sensors.gps_hdop, 1.0),
              "gps_sats": o.if_else(fix > 0.5, float(spec.sensors.gps_sats), 99.0), "steer_cmd_driver": steer_drv,
-             "yaw_moment_applied": m["yaw_moment"], "steer_limited": flags[0], "yaw_moment_limited": flags[1],
+             "yaw_moment_applied": m["yaw_moment"], "steer_limited": flags.steer_limited,
+             "yaw_moment_limited": flags.yaw_moment_limited,
              "mu": case["mu_assumed"]}
         if radius is None:  # a plant without wheels: no rear wheel speeds, so no slip
             g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.ecu.wheel_radius
         else:
             g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
-        z_ecu_n, e = ecu.step(z_ecu, o.stack([g[k] for k in ECU_INPUTS]), tr, cal, o)
-        out = {name: e[i] for i, name in enumerate(ECU_OUTPUTS)}
+        z_ecu_n, e = ecu.step(z_ecu, ECU_INPUTS.pack(g, o), tr, cal, o)
+        out = ECU_OUTPUTS.as_dict(e)
         steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
         active, mu_est = out["active"], out["mu_est"]
 
     # 3. actuators
+    zero = 0.0 * steer_drv
     if ecu.kind == "driver":
         z_act_n = z_act
-        a = [steer_drv, 0.0 * steer_drv, 0.0 * steer_drv, 0.0 * steer_drv]
+        a = {"steer": steer_drv, "yaw_moment": zero, "steer_limited": zero, "yaw_moment_limited": zero}
     else:
         lim = spec.limits
         tmax = lim.torque_max if lim.torque_max is not None else (
             sp.max_motor_torque if "max_motor_torque" in spec.fields else 1e9)
-        z_act_n, av = actuator_law(sp, lim, tmax, z_act, o.stack([steer_cmd, nz_cmd, 0.0 * steer_cmd, dt]), o)
-        a = [av[i] for i in range(4)]
-    rate = (a[0] - applied[0]) / dt
+        z_act_n, av = actuator_law(sp, lim, tmax, z_act, ACT_SIGNALS.pack(o=o, steer_cmd=steer_cmd,
+                                                                          yaw_moment_cmd=nz_cmd, t_mean=0.0 * steer_cmd,
+                                                                          dt=dt), o)
+        a = ACT_OUTPUTS.as_dict(av)
+    rate = (a["steer"] - applied.steer) / dt
 
     # 4. the plant over the period
-    cmd = o.stack([a[0], a[1], speed_ref, drive_on, rate])
+    cmd = COMMANDS.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], speed_ref=speed_ref, drive_on=drive_on,
+                        steer_rate=rate)
     x_n = rk4_step(model, sp, x, cmd, w, dt, spec.n_sub)
-    z_n = o.concat([x_n, z_ecu_n, z_act_n, o.stack([a[0], a[1], rate, a[2], a[3]]), o.stack(nxt)])
-    extra = o.stack([a[0], a[1], steer_drv, nz_cmd, beta_ref, yaw_rate_ref, beta_est, yaw_rate_est, a[3], steer_cmd,
-                     a[2], flags[0], flags[1], rate, active, mu_est])
+    parts = {"plant": x_n, "actuator": z_act_n,
+             "applied": APPLIED.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_rate=rate),
+             "flags": FLAGS.pack(o=o, steer_limited=a["steer_limited"], yaw_moment_limited=a["yaw_moment_limited"]),
+             "slots": GPS_SLOTS.pack(nxt, o)}
+    if spec.ecu.n_state:
+        parts["ecu"] = z_ecu_n
+    z_n = spec.state_layout.pack(parts, o)
+    extra = EXTRA.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_driver=steer_drv, yaw_moment_cmd=nz_cmd,
+                       beta_ref=beta_ref, yaw_rate_ref=yaw_rate_ref, beta_est=beta_est, yaw_rate_est=yaw_rate_est,
+                       yaw_moment_limited=a["yaw_moment_limited"], steer_cmd=steer_cmd, steer_limited=a["steer_limited"],
+                       steer_limited_last=flags.steer_limited, yaw_moment_limited_last=flags.yaw_moment_limited,
+                       steer_rate=rate, active=active, mu_est=mu_est)
     return z_n, y, extra, meas
 
 
@@ -354,7 +429,8 @@ def run_stepped(spec: LoopSpec, params: VehicleParams, U: np.ndarray, z0: np.nda
     Y = np.full((n, len(TRUTH)), np.nan)
     E = np.full((n, len(EXTRA)), np.nan)
     M = np.full((n, len(MEAS)), np.nan)
-    nx = spec.sizes[0]
+    plant_part = spec.state_layout.slot("plant")
+    i_steer, i_speed = INPUTS.index("steer_driver"), INPUTS.index("speed_ref")
     ix, iy, iyaw = (model.state_index(s) for s in ("x", "y", "yaw"))
     ivx = model.states.index("vx") if "vx" in model.states else None
     drv = driver.initial_state() if driver is not None else None
@@ -364,9 +440,9 @@ def run_stepped(spec: LoopSpec, params: VehicleParams, U: np.ndarray, z0: np.nda
     U = np.array(U, float)
     for k in range(n):
         if driver is not None:
-            x = z[:nx]
-            vx = x[ivx] if ivx is not None else U[k, 1]
-            drv, U[k, 0] = driver.steer(drv, x[ix], x[iy], x[iyaw], vx)
+            x = z[plant_part]
+            vx = x[ivx] if ivx is not None else U[k, i_speed]
+            drv, U[k, i_steer] = driver.steer(drv, x[ix], x[iy], x[iyaw], vx)
         if program is not None:
             z, Y[k], E[k], M[k] = program.step_once(z, U[k], pv, theta)
         else:
@@ -400,17 +476,17 @@ def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, distu
     n = int(round(maneuver.duration / dt))
     t = np.arange(n) * dt
     W = disturbance_profile(disturbances, t)
-    U = np.zeros((n, n_inputs()))
+    U = INPUTS.zeros(n)
+    col = INPUTS.columns(U)  # views: writing them fills U
     if maneuver.open_loop:
-        U[:, 0] = maneuver.steer(t)
-    U[:, 1] = maneuver.speed
-    U[:, 2] = maneuver.drive_on(t)
-    i0 = 3 + len(DISTURBANCES)
-    U[:, 3:i0] = W.T
-    U[:, i0:i0 + len(NOISE)] = noise_matrix(sensors, seed, n).T
+        col["steer_driver"][:] = maneuver.steer(t)
+    col["speed_ref"][:] = maneuver.speed
+    col["drive_on"][:] = maneuver.drive_on(t)
+    col["disturbances"][:] = W.T
+    col["noise"][:] = noise_matrix(sensors, seed, n).T
     fix = gps_fix_mask(t, sensors)
-    U[:, i0 + len(NOISE)] = fix
-    U[:, i0 + len(NOISE) + 1:] = latch_schedule(fix, sensors.gps_latency, dt).T
+    col["fix"][:] = fix
+    col["capture"][:], col["emit"][:] = latch_schedule_parts(fix, sensors.gps_latency, dt)
     need = rk4_substeps(model, params, dt)
     if need > spec.n_sub:
         raise LoopError(f"'{params.name}': these plant parameters need {need} RK4 sub-steps per sample, the "
@@ -431,14 +507,14 @@ def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, 
     """The loop state at the start: plant ``x0``, the ECU's initial state, nothing applied, the
     GPS slots holding the first sample's truth."""
     model = get_plant(spec.plant)
-    sizes = spec.sizes
-    z0 = np.zeros(sum(sizes))
-    z0[:sizes[0]] = x0
-    z0[sizes[0]:sizes[0] + sizes[1]] = spec.ecu.initial_state()
-    cmd0 = np.array([0.0, 0.0, speed, 1.0, 0.0])
-    y0 = np.asarray(model.h(x0, model.command_map(cmd0, x0, params), w0, params), float).ravel()
-    first = np.array([y0[TRUTH.index(k)] for k in ("yaw", "vx", "vy", "yaw_rate")])
-    z0[sum(sizes[:5]):] = np.tile(first, SLOTS)
+    lay = spec.state_layout
+    z0 = lay.zeros()
+    z0[lay.slot("plant")] = x0
+    z0[lay.slot("ecu")] = spec.ecu.initial_state()
+    cmd0 = COMMANDS.pack(steer=0.0, yaw_moment=0.0, speed_ref=speed, drive_on=1.0, steer_rate=0.0)
+    y0 = TRUTH.as_dict(np.asarray(model.h(x0, model.command_map(cmd0, x0, params), w0, params), float).ravel())
+    first = SLOT.pack({k: y0[k] for k in SLOT})
+    z0[lay.slot("slots")] = np.tile(first, SLOTS)
     return z0
 
 
@@ -448,6 +524,13 @@ def noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
     rows = [nz["steer"], nz["gyro"], nz["roll_gyro"], nz["accel"][0], nz["accel"][1], *nz["wheel"], nz["speed"],
             nz["gps"][0], nz["gps"][1], nz["heading"]]
     return np.vstack(rows)
+
+
+def latch_schedule_parts(fix: np.ndarray, latency: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The (samples x SLOTS) capture and emit one-hots of :func:`latch_schedule` (the :data:`INPUTS`
+    entries ``capture`` and ``emit``)."""
+    both = latch_schedule(fix, latency, dt)
+    return both[:SLOTS].T, both[SLOTS:].T
 
 
 def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:

@@ -229,9 +229,9 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
                 from evstab.plants import TRUTH
                 from .closed_loop import EXTRA
                 t = np.arange(len(U)) * cfg.dt
-                runs[pt.name] = (t, Y[:, TRUTH.index("yaw_rate")], Y[:, TRUTH.index("beta")],
-                                 E[:, EXTRA.index("yaw_rate_ref")], E[:, EXTRA.index("beta_ref")],
-                                 E[:, EXTRA.index("steer")], E[:, EXTRA.index("yaw_moment")])
+                y, e = TRUTH.columns(Y), EXTRA.columns(E)
+                runs[pt.name] = (t, y["yaw_rate"], y["beta"], e["yaw_rate_ref"], e["beta_ref"], e["steer"],
+                                 e["yaw_moment"])
             for label, (t, yr, b, ref, bref, st, nz) in runs.items():
                 for k in range(0, len(t), decimate):
                     rows.append({"mu": mu, "maneuver": man.name, "controller": label, "t": float(t[k]),

@@ -17,12 +17,13 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams
 from evstab.plants.backend import NUMPY
 from evstab.plants.errors import EvstabError
+from evstab.plants.signals import Layout, Signal
 
 from .estimation import design_filter
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
-from .firmware.ecu import (FIRMWARE_METHODS, INPUT_NAMES as ECU_INPUTS, OUTPUT_NAMES as ECU_OUTPUTS, EcuDesign,
-                           ecu_control, ecu_estimate)
+from .firmware.ecu import (FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign, control_layout,
+                           ecu_control, ecu_estimate, rear_torques)
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 
@@ -67,13 +68,20 @@ class LoopEcu:
         """(filter state, controller state) sizes."""
         if self.kind == "driver":
             return 0, 0
-        ne = self.ecu.layout["controller"] if self.has_filter else 0
+        ne = self.ecu.layout.index("controller") if self.has_filter else 0
         nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE) + len(sup_mod.STATE)
         return ne, nc
 
     @property
     def n_state(self) -> int:
         return sum(self.sizes)
+
+    @property
+    def layout(self) -> Layout:
+        """The loop ECU's state: the filter's part, then the controller's (law and supervisor, or the yaw PI)."""
+        ne, nc = self.sizes
+        return Layout("loop ECU state", [Signal("filter", "-", "the filter's state", ne),
+                                         Signal("control", "-", "the controller's state", nc)])
 
     def calibration_names(self) -> tuple[str, ...]:
         return () if self.ecu is None else tuple(c.name for c in self.ecu.calibration())
@@ -83,43 +91,52 @@ class LoopEcu:
 
     def initial_state(self) -> np.ndarray:
         ne, nc = self.sizes
-        z = np.zeros(ne + nc)
+        lay = self.layout
+        z = lay.zeros()
         if ne:
-            z[:ne] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
+            z[lay.slot("filter")] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
         if self.kind not in ("driver", "yaw-pi"):
-            z[ne + len(ctl_mod.STATE):] = sup_mod.initial_state(self.ecu.controller)
+            z[lay.slot("control")] = control_layout().pack(controller=ctl_mod.STATE.zeros(),
+                                                           supervisor=np.asarray(sup_mod.initial_state(self.ecu.controller)))
         return z
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
         """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
         ``cal`` the calibration values (numbers or symbols); ``truth`` is read by ``two-dof-true`` only."""
         d = self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
-        ne, nc = self.sizes
-        zero = 0.0 * u[0]
+        g = ECU_INPUTS.as_dict(u)
+        zero = 0.0 * g["dt"]
         if self.has_filter:
-            z_est_n, est = ecu_estimate(d, z[0:ne], u, o)
+            z_est_n, est = ecu_estimate(d, z[self.layout.slot("filter")], u, o)
         else:
             z_est_n = None
             est = {"beta": truth["beta"], "yaw_rate": truth["yaw_rate"], "yaw": truth["yaw"], "d1": zero,
                    "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero}
-        z_ctl = z[ne:ne + nc]
+        z_ctl = z[self.layout.slot("control")]
         if self.kind == "yaw-pi":
-            g = {name: u[i] for i, name in enumerate(ECU_INPUTS)}
-            sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"],
-                           g["mu"], g["steer_limited"], g["yaw_moment_limited"]])
-            z_ctl_n, c = yaw_pi_law(d.controller, z_ctl, sig, o)
-            diff = o.fmin(o.fmax(c[1] * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
-            y = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"],
-                         est["beta_std"], est["gps_used"], c[0], c[1], -diff, diff, c[2], c[3], 1.0 + zero, g["mu"]])
+            sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
+                                       yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=g["mu"],
+                                       steer_limited=g["steer_limited"], yaw_moment_limited=g["yaw_moment_limited"])
+            z_ctl_n, c_y = yaw_pi_law(d.controller, z_ctl, sig, o)
+            c = ctl_mod.OUTPUTS.unpack(c_y)
+            t_rl, t_rr = rear_torques(d, c.yaw_moment, o)
+            y = ECU_OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias",
+                                                             "beta_std", "gps_used")},
+                                 steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
+                                 beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, mu_est=g["mu"])
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
-                ys = [y[i] for i in range(len(ECU_OUTPUTS))]
-                ys[ECU_OUTPUTS.index("steer_cmd")] = u[ECU_INPUTS.index("steer_cmd_driver")]
+                ys = ECU_OUTPUTS.as_dict(y)
+                ys["steer_cmd"] = g["steer_cmd_driver"]
                 for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
-                    ys[ECU_OUTPUTS.index(name)] = zero
-                y = o.stack(ys)
-                z_ctl_n = o.stack([zero, zero] + [z_ctl_n[i] for i in range(2, nc)])
+                    ys[name] = zero
+                y = ECU_OUTPUTS.pack(ys, o)
+                parts = control_layout().as_dict(z_ctl_n)
+                law = ctl_mod.STATE.as_dict(parts["controller"])
+                law["xi_beta"] = law["xi_yaw_rate"] = zero
+                z_ctl_n = control_layout().pack(o=o, controller=ctl_mod.STATE.pack(law, o),
+                                                supervisor=parts["supervisor"])
         z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
         return z_next, y
 

@@ -124,15 +124,13 @@ def small_steer_runs(set_id: int, speeds_kmh=FIT_SPEEDS_KMH) -> list[dict]:
         man = _fit_maneuver(v, amp)
         n = int(round(man.duration / DT))
         t = np.arange(n) * DT
-        cmd = np.zeros((len(COMMANDS), n))
-        cmd[COMMANDS.index("steer")] = man.steer(t)
-        cmd[COMMANDS.index("steer_rate")] = steer_rate(cmd[0], DT)
-        cmd[COMMANDS.index("speed_ref")] = v
-        cmd[COMMANDS.index("drive_on")] = 1.0
+        steer = man.steer(t)
+        cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=np.full(n, v), drive_on=np.ones(n),
+                            steer_rate=steer_rate(steer, DT))
         X, Y = cp.rollout(model.initial_state(truth, v), cmd, default_disturbance())
+        y = TRUTH.as_dict(Y)
         runs.append({"speed": v, "t": t, "steer": X[model.state_index("steer"), :n],
-                     "yaw_rate": Y[TRUTH.index("yaw_rate")], "beta": Y[TRUTH.index("beta")],
-                     "ay": Y[TRUTH.index("ay")], "vx": Y[TRUTH.index("vx")]})
+                     "yaw_rate": y["yaw_rate"], "beta": y["beta"], "ay": y["ay"], "vx": y["vx"]})
     return runs
 
 

@@ -3,7 +3,7 @@
 Inputs in ``DIR``: ``design.json``, ``sweep.csv``, ``analysis.csv``, ``poles.csv``,
 ``responses.csv``, ``limits.csv``. Outputs: ``report.md`` with PNGs under
 ``figures/`` and ``report.html`` with the same content and the figures embedded
-(self-contained). Both are rendered from one list of blocks, so they cannot
+(self-contained), and ``summary.md`` (:func:`summary_table`). Both are rendered from one list of blocks, so they cannot
 disagree; every number is formatted by :func:`fmt`.
 """
 
@@ -415,10 +415,48 @@ def build(data: dict) -> Doc:
     return D
 
 
+def summary_table(doc: dict) -> str:
+    """``summary.md``: the paper design against the tuned design in one Markdown table (gains, noise
+    intensities, worst and median cost, stable cases, FMVSS 126, the limit runs), from ``design.json``."""
+    s, des = doc["sweep"], doc["designs"]
+
+    def g(x):
+        return f"{x:.4g}"
+
+    def row(label, f):
+        return [label] + [f(n) for n in ("paper", "tuned")]
+
+    def fm(n):
+        lim = s.get("limits", {}).get(n)
+        if not lim:
+            return "-"
+        return ", ".join(f"{k}: {v}" for k, v in lim["fmvss126"].items()) + (" PASS" if lim["fmvss126_pass"] else " FAIL")
+
+    def held(n):
+        lim = s.get("limits", {}).get(n)
+        return "-" if not lim else (f"{lim['limit_runs_held']} / {lim['limit_runs']}, "
+                                    + ("yes" if lim["no_worse_than_no_control"] else "no"))
+
+    rows = [row("K_beta, K_gamma [rad/s]", lambda n: f"{g(des[n]['k_beta'])}, {g(des[n]['k_gamma'])}"),
+            row("q_beta, q_yaw_rate, q_d1, q_d2", lambda n: ", ".join(g(des[n][k]) for k in
+                                                                   ("q_beta", "q_yaw_rate", "q_d1", "q_d2"))),
+            row(f"worst-case cost over the {s['cases']} cases",
+                lambda n: f"{g(s[n]['worst_cost'])} (case {s[n]['worst_case_id']})"),
+            row("median cost", lambda n: g(s[n]["median_cost"])),
+            row("stable cases", lambda n: f"{s[n]['stable_cases']} / {s['cases']}"),
+            ["cases where the tuned design is cheaper by the margin", "", f"{s['tuned_better_cases']} / {s['cases']}"],
+            row("FMVSS 126 runs passed", fm),
+            row("limit runs held, no worse than no control", held)]
+    lines = ["| | paper design | tuned design |", "| --- | --- | --- |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
 def write_report(d) -> tuple[Path, Path]:
-    """Draw ``report.md`` (+ ``figures/``) and ``report.html`` from the data in ``d``."""
+    """Draw ``report.md`` (+ ``figures/``), ``report.html`` and ``summary.md`` from the data in ``d``."""
     d = Path(d)
     data = load_outputs(d)
+    atomic_write(d / "summary.md", lambda fh: fh.write(summary_table(data["design"])))
     D = build(data)
     for b in D.blocks:
         if b[0] == "fig":

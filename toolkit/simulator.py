@@ -159,11 +159,9 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     W = disturbance_profile(disturbances, t)
     meas, extra, backend, n_sub = None, None, "numpy", None
     if controller is None and maneuver.open_loop:  # nothing feeds back: the plant alone, one call
-        cmd = np.zeros((len(COMMANDS), n))
-        cmd[COMMANDS.index("speed_ref")] = maneuver.speed
-        cmd[COMMANDS.index("drive_on")] = maneuver.drive_on(t)
-        cmd[COMMANDS.index("steer")] = maneuver.steer(t)
-        cmd[COMMANDS.index("steer_rate")] = steer_rate(cmd[COMMANDS.index("steer")], dt)
+        steer = np.asarray(maneuver.steer(t), float) * np.ones(n)
+        cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=np.full(n, float(maneuver.speed)),
+                            drive_on=np.asarray(maneuver.drive_on(t), float) * np.ones(n), steer_rate=steer_rate(steer, dt))
         cp = compiled_plant(model, params, dt, compile=compile)
         x0 = model.initial_state(params, maneuver.speed)
         X, Y = cp.rollout(x0, cmd, W)
@@ -171,7 +169,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
             Y = Y.copy()
             Y[:, int(np.argmax(~np.all(np.isfinite(X), axis=0))):] = np.nan
         backend, n_sub = cp.backend, cp.n_sub
-        commands = {name: cmd[i] for i, name in enumerate(COMMANDS)}
+        commands = COMMANDS.as_dict(cmd)
     else:
         kind = "driver" if controller is None else controller
         if kind != "driver" and kind not in cl.CONTROLLERS:
@@ -191,13 +189,13 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
             Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, driver=driver, program=prog)
         Y = Yt.T
         backend, n_sub = (prog.backend if prog is not None else "numpy"), spec.n_sub
-        ie = {k: i for i, k in enumerate(cl.EXTRA)}
-        commands = {"steer": E[:, ie["steer"]], "yaw_moment": E[:, ie["yaw_moment"]],
-                    "speed_ref": U[:, 1].copy(), "drive_on": U[:, 2].copy(), "steer_rate": E[:, ie["steer_rate"]]}
+        ec, uc = cl.EXTRA.columns(E), cl.INPUTS.columns(U)
+        commands = {"steer": ec["steer"], "yaw_moment": ec["yaw_moment"], "speed_ref": uc["speed_ref"].copy(),
+                    "drive_on": uc["drive_on"].copy(), "steer_rate": ec["steer_rate"]}
         if kind != "driver":
-            extra = {k: E[:, ie[k]] for k in cl.EXTRA if k not in commands}
+            extra = {k: ec[k] for k in cl.EXTRA if k not in commands}
             meas = _log_readings(M, Y, W, sensors, seed)
-    truth = {name: Y[i] for i, name in enumerate(TRUTH)}
+    truth = TRUTH.as_dict(Y)
     if is_multibody(model.name):
         check_rollover(model.name, truth["roll"], dt, maneuver)
     motion = [TRUTH.index(k) for k in ("vx", "vy", "yaw_rate", "yaw", "x", "y")]  # wheel speeds may be NaN
@@ -207,7 +205,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
                               f"{maneuver.speed * 3.6:.0f} km/h)")
     if is_multibody(model.name):
         _check_mb_speed(model, truth["vx"], dt, maneuver)
-    dist = {name: W[i] for i, name in enumerate(DISTURBANCES)}
+    dist = DISTURBANCES.as_dict(W)
     if meas is None:
         meas = measure(t, truth, {"steer": commands["steer"], "yaw_moment": commands["yaw_moment"],
                                   "bank": dist["bank"]}, sensors, seed, params.wheel_radius)
@@ -224,8 +222,8 @@ def _log_readings(M: np.ndarray, Y: np.ndarray, W: np.ndarray, sensors: SensorCo
     does not read, from the truth as :func:`measure` makes it."""
     from .closed_loop import MEAS
     from evstab.plants.sensors import draw_noise, log_columns
-    m = {k: M[:, i] for i, k in enumerate(MEAS)}
-    roll = Y[TRUTH.index("roll")] + W[DISTURBANCES.index("bank")]
+    m = MEAS.columns(M)
+    roll = TRUTH.as_dict(Y)["roll"] + DISTURBANCES.as_dict(W)["bank"]
     return log_columns(m, sensors, roll, draw_noise(sensors, seed, M.shape[0])["gps_roll"])
 
 

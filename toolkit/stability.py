@@ -34,6 +34,7 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams
 from evstab.plants.bicycle import lateral_matrices
 
+from .estimation.core import posterior
 from .estimation.kalman import layout as kalman_layout
 from .estimation.spec import FilterDesign
 
@@ -145,7 +146,7 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     from evstab.controllers.actuators import ActuatorLimits
     from evstab.plants import DISTURBANCES, get_plant
     from evstab.plants.sensors import SensorConfig
-    from .closed_loop import NOISE, latch_schedule, loop_initial_state, loop_spec, n_inputs, program
+    from .closed_loop import INPUTS, latch_schedule_parts, loop_initial_state, loop_spec, program
     from .estimation.analysis import discrete_model, periodic_gains, steady_state_gain
 
     true_params = true_params or design.params
@@ -161,29 +162,29 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
                      design=design, truth=true_params, n_sub=ANALYSIS_SUBSTEPS, limits=limits)
     prog = program(spec)
     model = get_plant("bicycle")
-    w0 = np.zeros(len(DISTURBANCES))
-    w0[DISTURBANCES.index("mu_fl"):] = true_params.mu
+    w0 = DISTURBANCES.pack(lateral_force=0.0, yaw_moment_dist=0.0, roll_moment_dist=0.0, bank=0.0,
+                           **{f"mu_{c}": true_params.mu for c in ("fl", "fr", "rl", "rr")})
     z = loop_initial_state(spec, model.initial_state(true_params, speed), true_params, speed, w0)
     f = spec.ecu.ecu.filter
     lay = kalman_layout(f)
-    off = spec.sizes[0]
     if gps_rate is None:
         _, P = steady_state_gain(f, speed, dt)  # a-priori
         _, _, C, R = discrete_model(f, speed, dt)
-        P_post = P - P @ C.T @ np.linalg.solve(C @ P @ C.T + R, C @ P)
+        P_post, _ = posterior(P, C, R)
     else:
         _, posts = periodic_gains(f, speed, rate, dt)
         P_post = posts[-1]
-    z[off + lay["P"]:off + lay["P"] + f.n * f.n] = P_post.ravel(order="F")
-    z[off + lay["init"]] = 1.0
-    U = np.zeros((r, n_inputs()))
-    U[:, 1], U[:, 2] = speed, 1.0
-    U[:, 3:3 + len(DISTURBANCES)] = w0
-    i0 = 3 + len(DISTURBANCES) + len(NOISE)
+    z_ecu = z[spec.state_layout.slot("ecu")]  # a view: writing it fills z
+    z_ecu[lay.slot("P")] = P_post.ravel(order="F")
+    z_ecu[lay.index("init")] = 1.0
+    U = INPUTS.zeros(r)
+    col = INPUTS.columns(U)  # views
+    col["speed_ref"][:], col["drive_on"][:] = speed, 1.0
+    col["disturbances"][:] = w0
     fix = np.zeros(r)
     fix[0] = 1.0
-    U[:, i0] = fix
-    U[:, i0 + 1:] = latch_schedule(fix, 0.0, dt).T
+    col["fix"][:] = fix
+    col["capture"][:], col["emit"][:] = latch_schedule_parts(fix, 0.0, dt)
     pv = np.array([float(getattr(true_params, k)) for k in spec.fields])
     return prog, z, U, pv, prog.theta(mu_assumed=true_params.mu)
 

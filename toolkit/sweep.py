@@ -167,13 +167,12 @@ def standard_maneuvers(cfg: SweepConfig, speed: float) -> list[Maneuver]:
 
 def cost_terms(Y: np.ndarray, E: np.ndarray) -> dict:
     """Mean squares over one rollout (samples x signals arrays as the compiled loop returns)."""
-    it = {k: i for i, k in enumerate(TRUTH)}
-    ie = {k: i for i, k in enumerate(EXTRA)}
-    e_est = E[:, ie["beta_est"]] - Y[:, it["beta"]]
-    e_r = Y[:, it["yaw_rate"]] - E[:, ie["yaw_rate_ref"]]
-    e_b = Y[:, it["beta"]] - E[:, ie["beta_ref"]]
+    y, e = TRUTH.columns(Y), EXTRA.columns(E)
+    e_est = e["beta_est"] - y["beta"]
+    e_r = y["yaw_rate"] - e["yaw_rate_ref"]
+    e_b = y["beta"] - e["beta_ref"]
     return {"ms_est": float(np.mean(e_est**2)), "ms_r": float(np.mean(e_r**2)), "ms_b": float(np.mean(e_b**2)),
-            "ms_nz": float(np.mean(E[:, ie["yaw_moment"]] ** 2))}
+            "ms_nz": float(np.mean(e["yaw_moment"] ** 2))}
 
 
 def cost_of(ms_r, ms_b, ms_est, ms_nz, nz_max):

@@ -55,6 +55,59 @@ BOUNDS = 2.0
 """Each tuned parameter stays within a factor e^2 (7.4) of its start (the paper design)."""
 
 
+class _Function(ca.Callback):
+    """A casadi function ``R^n_in -> R^n_out`` evaluated by Python (``value(x)``) with its Jacobian
+    (``jacobian(x)``, ``n_out x n_in``) as a second callback, so IPOPT can take the gradient path."""
+
+    def __init__(self, name: str, n_in: int, n_out: int, value, jacobian):
+        ca.Callback.__init__(self)
+        self._n, self._m, self._value, self._jacobian = n_in, n_out, value, jacobian
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 1
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self._n, 1)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(self._m, 1)
+
+    def eval(self, arg):
+        return [self._value(np.array(arg[0]).ravel())]
+
+    def has_jacobian(self):
+        return True
+
+    def get_jacobian(self, name, inames, onames, opts):
+        outer = self
+
+        class Jac(ca.Callback):
+            def __init__(self):
+                ca.Callback.__init__(self)
+                self.construct(name, opts)
+
+            def get_n_in(self):
+                return 2
+
+            def get_n_out(self):
+                return 1
+
+            def get_sparsity_in(self, i):
+                return ca.Sparsity.dense(outer._n, 1) if i == 0 else ca.Sparsity.dense(outer._m, 1)
+
+            def get_sparsity_out(self, i):
+                return ca.Sparsity.dense(outer._m, outer._n)
+
+            def eval(self, arg):
+                return [outer._jacobian(np.array(arg[0]).ravel())]
+
+        self._jac = Jac()
+        return self._jac
+
 def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
     phi = ca.MX.sym("phi", len(DesignPoint.TUNED))
     U = ca.MX.sym("U", prog.nin, n)
@@ -70,12 +123,11 @@ def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
                     rest)
     acc = prog.step.mapaccum("tune_acc", n)
     _, Ys, Es, _ = acc(z0, U, ca.repmat(pv, 1, n), ca.repmat(th, 1, n))
-    it = {k: i for i, k in enumerate(TRUTH)}
-    ie = {k: i for i, k in enumerate(closed_loop.EXTRA)}
-    e_est = Es[ie["beta_est"], :] - Ys[it["beta"], :]
-    e_r = Ys[it["yaw_rate"], :] - Es[ie["yaw_rate_ref"], :]
-    e_b = Ys[it["beta"], :] - Es[ie["beta_ref"], :]
-    nz = Es[ie["yaw_moment"], :]
+    it, ie = TRUTH.index, closed_loop.EXTRA.index  # rows of the (signals x samples) casadi matrices
+    e_est = Es[ie("beta_est"), :] - Ys[it("beta"), :]
+    e_r = Ys[it("yaw_rate"), :] - Es[ie("yaw_rate_ref"), :]
+    e_b = Ys[it("beta"), :] - Es[ie("beta_ref"), :]
+    nz = Es[ie("yaw_moment"), :]
     ms = [ca.sumsqr(e) / n for e in (e_est, e_r, e_b, nz)]
     cost = sweep.cost_of(ms[1], ms[2], ms[0], ms[3], nz_max)
     grad = ca.jacobian(cost, phi)
@@ -220,56 +272,6 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
             bar.update(1)
         return cache[key]
 
-    class Costs(ca.Callback):
-        def __init__(self):
-            ca.Callback.__init__(self)
-            self.construct("costs", {})
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(len(DesignPoint.TUNED), 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(m, 1)
-
-        # log J: the costs span 0.05 (a held nominal case) to 4e4 (a spin); on the log scale the
-        # epigraph's rows and the caps are comparable for IPOPT (the max is unchanged: log is monotone)
-        def eval(self, arg):
-            return [np.log(evaluate(np.array(arg[0]).ravel())[0])]
-
-        def has_jacobian(self):
-            return True
-
-        def get_jacobian(self, name, inames, onames, opts):
-            class Jac(ca.Callback):
-                def __init__(self):
-                    ca.Callback.__init__(self)
-                    self.construct(name, opts)
-
-                def get_n_in(self):
-                    return 2
-
-                def get_n_out(self):
-                    return 1
-
-                def get_sparsity_in(self, i):
-                    return ca.Sparsity.dense(len(DesignPoint.TUNED), 1) if i == 0 else ca.Sparsity.dense(m, 1)
-
-                def get_sparsity_out(self, i):
-                    return ca.Sparsity.dense(m, len(DesignPoint.TUNED))
-
-                def eval(self, arg):
-                    J, dJ = evaluate(np.array(arg[0]).ravel())
-                    return [dJ / J[:, None]]
-
-            self._jac = Jac()
-            return self._jac
-
     n_phi = len(DesignPoint.TUNED)
     sig_cache: dict = {}
 
@@ -290,54 +292,11 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
             cols = [_sigma_subset(cfg, stab, q) for q in pts]
         return np.column_stack([(np.array(c) - base) / h for c in cols])
 
-    class Sigmas(ca.Callback):
-        def __init__(self):
-            ca.Callback.__init__(self)
-            self.construct("sigmas", {})
-
-        def get_n_in(self):
-            return 1
-
-        def get_n_out(self):
-            return 1
-
-        def get_sparsity_in(self, i):
-            return ca.Sparsity.dense(n_phi, 1)
-
-        def get_sparsity_out(self, i):
-            return ca.Sparsity.dense(len(stab), 1)
-
-        def eval(self, arg):
-            return [sigma_values(np.array(arg[0]).ravel())]
-
-        def has_jacobian(self):
-            return True
-
-        def get_jacobian(self, name, inames, onames, opts):
-            class Jac(ca.Callback):
-                def __init__(self):
-                    ca.Callback.__init__(self)
-                    self.construct(name, opts)
-
-                def get_n_in(self):
-                    return 2
-
-                def get_n_out(self):
-                    return 1
-
-                def get_sparsity_in(self, i):
-                    return ca.Sparsity.dense(n_phi, 1) if i == 0 else ca.Sparsity.dense(len(stab), 1)
-
-                def get_sparsity_out(self, i):
-                    return ca.Sparsity.dense(len(stab), n_phi)
-
-                def eval(self, arg):
-                    return [sigma_jacobian(np.array(arg[0]).ravel())]
-
-            self._jac = Jac()
-            return self._jac
-
-    costs, sigmas = Costs(), Sigmas()
+    # log J: the costs span 0.05 (a held nominal case) to 4e4 (a spin); on the log scale the
+    # epigraph's rows and the caps are comparable for IPOPT (the max is unchanged: log is monotone)
+    costs = _Function("costs", n_phi, m, lambda phi: np.log(evaluate(phi)[0]),
+                      lambda phi: (lambda J, dJ: dJ / J[:, None])(*evaluate(phi)))
+    sigmas = _Function("sigmas", n_phi, len(stab), sigma_values, sigma_jacobian)
     phi0 = phi_of(start)
     x = ca.MX.sym("x", len(phi0) + 1)
     phi, t = x[:-1], x[-1]

@@ -12,6 +12,11 @@ from evstab.plants.maneuvers import sine_with_dwell, step_steer
 from evstab.toolkit.simulator import simulate
 
 
+def _state(d, **entries):
+    """A supervisor state: the initial one with ``entries`` set (by name, per :data:`supervisor.STATE`)."""
+    return sup.STATE.pack({**sup.STATE.as_dict(np.asarray(sup.initial_state(d))), **entries})
+
+
 def test_below_the_thresholds_the_ecu_passes_the_driver_through_exactly():
     # straight road with sensor noise, and a gentle step: commands are the driver's, bit for bit
     p = load_vehicle("compact-ev")
@@ -68,7 +73,7 @@ def test_yaw_guard_and_steer_authority():
     # stays within the authority and its rate
     d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
     dt = 1e-3
-    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # active, fully blended, no correction yet
+    z = _state(d, active=1.0, blend=1.0, mu_est=1.0)  # active, fully blended, no correction yet
     # the car yaws too little to the left (error > 0): a right correction and a negative moment are dropped
     zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.0, -500.0, 1e4, dt)
     assert steer == 0.02 and nz == 0.0
@@ -77,10 +82,10 @@ def test_yaw_guard_and_steer_authority():
     assert nz == 500.0 and steer == pytest.approx(0.02 + d.steer_authority_rate * dt, rel=1e-12)
     # after long enough the correction sits at the authority, not at the law's 0.48 rad
     for _ in range(2000):
-        zn, steer, nz, _ = sup.supervise(d, zn, 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.5, 500.0, 1e4, dt)
-        zn[4], zn[7] = 1.0, 0.0
+        zn, steer, nz, _ = sup.supervise(d, _state(d, **zn, mu_est=1.0), 20.0, 0.05, 0.0, 0.0, 0.3, 0.02, 0.5,
+                                         500.0, 1e4, dt)
     assert steer == pytest.approx(0.02 + d.steer_authority, rel=1e-12)
-    assert zn[5] == 1.0  # and the ECU knows its steer is limited (its own flag for the law's anti-windup)
+    assert zn["steer_saturated"] == 1.0  # and the ECU knows its steer is limited (its own flag for the law's anti-windup)
 
 
 def test_slip_control_keeps_the_rear_wheels_rolling():
@@ -122,13 +127,13 @@ def test_phase_plane_guard_acts_against_the_slide_and_only_outside_its_region():
     # estimate and no yaw-rate error: the law is switched on, and the guard's yaw moment and steer
     # turn the car right (negative: b21, b22 > 0), in proportion to the excess
     dt = 1e-3
-    z = [1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    z = _state(d, active=1.0, blend=1.0, mu_est=1.0)
     excess = tau * -0.4 + b
     zn, steer, nz, _ = sup.supervise(d, z, 20.0, 0.0, 0.0, 1.0, 0.3, 0.02, 0.02, 0.0, 1e5, dt, beta_rate=-0.4)
-    assert zn[0] == 1.0 and excess < 0
+    assert zn["active"] == 1.0 and excess < 0
     assert nz == pytest.approx(d.phase_gain_nz * d.params.yaw_inertia * excess, rel=1e-12)
     assert steer == pytest.approx(0.02 - d.steer_authority_rate * dt, rel=1e-12)  # rate-limited, to the right
     # inactive car, inside the region: not switched on by the guard
     z0 = sup.initial_state(d)
     zn, steer, nz, _ = sup.supervise(d, z0, 20.0, 0.0, 0.0, 1.0, 0.0, 0.02, 0.02, 0.0, 1e5, dt, beta_rate=0.05)
-    assert zn[0] == 0.0 and steer == 0.02 and nz == 0.0
+    assert zn["active"] == 0.0 and steer == 0.02 and nz == 0.0

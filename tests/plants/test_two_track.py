@@ -4,7 +4,7 @@ combined slip, low speed, signs, and the roll model."""
 import numpy as np
 import pytest
 
-from evstab.plants import G, bicycle, default_disturbance, get_plant, load_vehicle, two_track
+from evstab.plants import COMMANDS, G, bicycle, default_disturbance, get_plant, load_vehicle, two_track
 from evstab.plants.backend import NUMPY
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import ramp_steer, step_steer
@@ -77,8 +77,9 @@ def test_rear_torque_difference_makes_positive_yaw_moment(compact):
     # N_z = (T_rr - T_rl) t_r / (2 R_w) > 0 turns the car left.
     model = get_plant("two-track")
     x = model.initial_state(compact, 20.0)
-    u0 = model.command_map(np.array([0.0, 0.0, 20.0, 0.0]), x, compact)
-    u1 = model.command_map(np.array([0.0, 500.0, 20.0, 0.0]), x, compact)
+    cmd = dict(steer=0.0, speed_ref=20.0, drive_on=0.0, steer_rate=0.0)
+    u0 = model.command_map(COMMANDS.pack(cmd, yaw_moment=0.0), x, compact)
+    u1 = model.command_map(COMMANDS.pack(cmd, yaw_moment=500.0), x, compact)
     t_rl, t_rr = u1[3], u1[4]
     assert (t_rr - t_rl) * compact.track_rear / (2 * compact.wheel_radius) == pytest.approx(500.0, rel=1e-12)
     i = model.state_index("omega_rr")

@@ -104,7 +104,7 @@ def test_steady_state_gain_matches_dare_and_dlqe():
     U = np.zeros((100000, len(INPUTS)))
     U[:] = _inputs_row(dt, v, fix=1.0)
     _, z = compiled_filter(d).run(U, initial_state(d), final_state=True)
-    P_post = z[lay["P"]:lay["P"] + d.n ** 2].reshape(d.n, d.n, order="F")
+    P_post = z[lay.slot("P")].reshape(d.n, d.n, order="F")
     K_tv = P_post @ C.T @ np.linalg.inv(R)  # optimal gain identity K = P+ C^T R^-1
     # hdop 1 -> course std = gps_velocity_std / v as in discrete_model. Tolerance 1e-4 absolute
     # (gains are 1e-2..1), 2e-3 relative: the 10 s disturbance mode and the bias random walk make P badly
@@ -123,7 +123,7 @@ def test_time_varying_filter_converges_to_periodic_gains():
     U[::200, INPUTS.index("fix")] = 1.0
     _, z = compiled_filter(d).run(U, initial_state(d), final_state=True)  # 60,000 = 15 chunks exactly
     # after 300 periods the last sample of the period matches the periodic solution's last posterior
-    P = z[lay["P"]:lay["P"] + d.n ** 2].reshape(d.n, d.n, order="F")
+    P = z[lay.slot("P")].reshape(d.n, d.n, order="F")
     np.testing.assert_allclose(P, posts[-1], rtol=1e-8, atol=1e-16)  # measured 1e-11: different algorithms
 
 

@@ -31,7 +31,7 @@ from evstab.toolkit.design_job import basic_design_document
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.estimation.spec import NoiseSettings
 from evstab.toolkit.firmware import gains as gains_mod
-from evstab.toolkit.firmware.ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step
+from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
 from evstab.toolkit.firmware.export import ecu_from_design, gain_set, render
 from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
 from evstab.toolkit.simulator import simulate
@@ -133,7 +133,7 @@ def _harness(binary, inputs_csv):
     res = _run([str(binary), str(inputs_csv)])
     assert res.stderr == ""  # sanitizers report here
     lines = res.stdout.splitlines()
-    assert lines[0].split(",") == list(OUTPUT_NAMES)
+    assert lines[0].split(",") == list(OUTPUTS)
     return np.loadtxt(lines[1:], delimiter=",", ndmin=2)
 
 
@@ -156,7 +156,7 @@ def test_exported_c_equals_replay_and_estimate(firmware, design_dir, ecu, which,
     est = np.genfromtxt(est_path, delimiter=",", names=True)
     Y = _harness(fw / "replay", inputs)
     Y_san = _harness(fw / "replay_san", inputs)
-    col = {name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)}
+    col = OUTPUTS.columns(Y)
     tol = TOL[precision]
     nz_tol = tol * 2 * ecu.controller.params.cornering_stiffness_front * ecu.controller.params.lf
     assert len(Y) == len(rep)
@@ -187,7 +187,7 @@ def test_exported_c_equals_the_simulators_controller(firmware, design_dir, ecu, 
     res, log_path = closed_loop
     _, inputs = _replay_cli(design_dir, log_path, tmp_path)
     Y = _harness(fw / "replay", inputs)
-    col = {name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)}
+    col = OUTPUTS.columns(Y)
     c = res.commands
     tol = TOL[precision]
     nz_tol = tol * 2 * ecu.controller.params.cornering_stiffness_front * ecu.controller.params.lf
@@ -219,7 +219,7 @@ def test_gain_set_round_trips_exactly(design_dir, ecu):
     d, prov, gps = gains_mod.load_gains(json.loads(text))
     assert d == ecu  # every field of filter, controller, schedule and split, bit for bit
     assert gains_mod.dumps(gains_mod.gains_document(d, prov, gps)) == text
-    assert doc["signals"]["inputs"][INPUT_NAMES.index("gps_course")]["unit"] == "rad"
+    assert doc["signals"]["inputs"][INPUTS.index("gps_course")]["unit"] == "rad"
     assert doc["controller"]["beta_error_max"] is None  # unlimited, written as null (JSON has no inf)
     assert doc["controller"]["k_beta"] == 6.5 and doc["estimator"]["noise"]["q_d2"] == 0.03
 
@@ -275,7 +275,7 @@ def test_a2l_parses_and_its_addresses_update_from_the_elf(design_dir, tmp_path):
     import re
     from evstab.toolkit.firmware.asam import MEASURED_STATE, measurements
     from evstab.toolkit.firmware.export import ecu_from_design
-    from evstab.toolkit.firmware.ecu import OUTPUT_NAMES
+    from evstab.toolkit.firmware.ecu import OUTPUTS
     nm = shutil.which("nm")
     if nm is None:
         pytest.skip("no nm (binutils)")
@@ -284,10 +284,10 @@ def test_a2l_parses_and_its_addresses_update_from_the_elf(design_dir, tmp_path):
     got = dict(re.findall(r"/begin MEASUREMENT (\w+) .*?ECU_ADDRESS (0x[0-9A-Fa-f]+)", text, flags=re.S))
     ecu, _ = ecu_from_design(design_dir)
     meas = measurements(ecu)
-    assert len(got) == len(meas) == len(OUTPUT_NAMES) + len(MEASURED_STATE)
-    for i, name in enumerate(OUTPUT_NAMES):
+    assert len(got) == len(meas) == len(OUTPUTS) + len(MEASURED_STATE)
+    for i, name in enumerate(OUTPUTS):
         assert int(got[f"out_{name}"], 16) == sym["evstab_out"] + 8 * i
-    for m in meas[len(OUTPUT_NAMES):]:
+    for m in meas[len(OUTPUTS):]:
         assert int(got[m["name"]], 16) == sym["evstab_st"] + 8 * m["index"]
 
 
@@ -388,20 +388,20 @@ def test_ecu_signs_follow_iso_8855(ecu):
     """A left steer asks for a left (positive) yaw rate; a positive yaw moment command speeds the
     right rear wheel and brakes the left one by N_z R_w / t_r each; a positive gyro reading makes a
     positive yaw-rate estimate."""
-    u = np.zeros(len(INPUT_NAMES))
-    g = dict(zip(INPUT_NAMES, range(len(INPUT_NAMES))))
+    u = np.zeros(len(INPUTS))
+    g = dict(zip(INPUTS, range(len(INPUTS))))
     u[g["dt"]], u[g["speed"]], u[g["gps_hdop"]], u[g["gps_sats"]], u[g["mu"]] = 1e-3, 20.0, 1.0, 10, 1.0
     u[g["wheel_speed_rl"]] = u[g["wheel_speed_rr"]] = 20.0 / ecu.wheel_radius  # rolling, no slip
     u[g["yaw_rate"]] = 0.05
     z = ecu.initial_state()
     for _ in range(50):
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
-    assert dict(zip(OUTPUT_NAMES, y))["yaw_rate"] > 0
+    assert dict(zip(OUTPUTS, y))["yaw_rate"] > 0
     # the driver steers left and the car does not turn (understeer): the law acts, turning left
     u[g["steer_cmd_driver"]], u[g["yaw_rate"]] = np.radians(1.0), 0.0
     for _ in range(300):
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
-    out = dict(zip(OUTPUT_NAMES, y))
+    out = dict(zip(OUTPUTS, y))
     assert out["yaw_rate_ref"] > 0 and out["active"] == 1.0
     nz = out["yaw_moment_cmd"]
     assert nz > 0 and out["steer_cmd"] >= u[g["steer_cmd_driver"]]
@@ -465,7 +465,7 @@ def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_d
     _, log_path = closed_loop
     rep, inputs = _replay_cli(quick_design_dir, log_path, tmp_path)
     Y = _harness(out / "replay", inputs)
-    for i, name in enumerate(OUTPUT_NAMES):
+    for i, name in enumerate(OUTPUTS):
         np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
 
 

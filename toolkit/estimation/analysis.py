@@ -20,6 +20,7 @@ import numpy as np
 import scipy.linalg
 
 from evstab.plants.backend import NUMPY
+from .core import posterior
 from .kalman import discretize
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
@@ -111,9 +112,8 @@ def steady_state_gain(d: FilterDesign, v: float, dt: float = 1e-3):
 
 
 def _update(P, C, R):
-    S = C @ P @ C.T + R
-    K = P @ C.T @ np.linalg.inv(S)
-    return K, P - K @ S @ K.T
+    P_post, K = posterior(P, C, R)
+    return K, P_post
 
 
 def _compose(m1, m2):

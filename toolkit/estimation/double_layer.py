@@ -18,7 +18,7 @@ Baselines: :func:`roll_kf` (Tseng et al.: states ``phi, phi'``, roll-rate measur
 ``v_x, v_y`` with the non-driven wheels' speed as the ``v_x`` measurement).
 
 These run in numpy over a whole log (a 5-state filter at 1 kHz: about 3 s per minute
-of log); they are study and analysis tools, not ``evstab estimate`` methods yet.
+of log); ``evstab estimate --method double-layer`` runs layer 2 on ``amrkf``'s estimate.
 """
 
 from __future__ import annotations
@@ -29,6 +29,18 @@ import numpy as np
 
 from evstab.plants import VehicleParams
 from evstab.plants.params import G
+
+from evstab.plants.signals import Layout, Signal
+
+from .core import predict, scalar_update, unit
+
+
+LAYER2 = Layout("layer-2 state", [
+    Signal("vx", "m/s", "body longitudinal velocity"), Signal("vy", "m/s", "body lateral velocity"),
+    Signal("roll", "rad", "roll angle"), Signal("roll_rate", "rad/s", "roll rate"),
+    Signal("d", "rad/s^2", "roll disturbance"),
+])
+VELOCITY = Layout("velocity state", [Signal("vx", "m/s"), Signal("vy", "m/s")])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -46,13 +58,9 @@ class Layer2Noise:
 
 
 def _kf_update(x, P, h_idx, z, r):
-    """Scalar update of the measurement ``x[h_idx]`` (Joseph form)."""
-    m = P[:, h_idx].copy()
-    S = m[h_idx] + r
-    K = m / S
-    x = x + K * (z - x[h_idx])
-    P = P - np.outer(K, m) - np.outer(m, K) + np.outer(K, K) * S
-    return x, 0.5 * (P + P.T)
+    """Scalar update of the measurement ``x[h_idx]`` (Joseph form, :func:`core.scalar_update`)."""
+    x, P, _, _ = scalar_update(x, P, unit(len(x), h_idx), z - x[h_idx], r)
+    return x, P
 
 
 def layer2(p: VehicleParams, t, ax, ay, yaw_rate, roll_rate, gps_speed, beta, beta_std=None,
@@ -78,18 +86,19 @@ def layer2(p: VehicleParams, t, ax, ay, yaw_rate, roll_rate, gps_speed, beta, be
                       [0.0, 0.0, 0.0, 0.0, 0.0]])
         F = np.eye(5) + A * dt
         u = np.array([ax[k], ay[k], 0.0, msh / ix * ay[k], 0.0])
-        x = F @ x + u * dt
         Q = np.diag([(noise.accel_std * dt) ** 2, (noise.accel_std * dt) ** 2, 0.0,
                      noise.q_roll_acc * dt, noise.q_d * dt])
-        P = F @ P @ F.T + Q
-        x, P = _kf_update(x, P, 3, pr[k], noise.roll_rate_std ** 2)
+        x, P = predict(x, P, F, Q, w=u * dt)
+        x, P = _kf_update(x, P, LAYER2.index("roll_rate"), pr[k], noise.roll_rate_std ** 2)
         if np.isfinite(V[k]) and np.isfinite(b[k]):
             # pseudo-measurements (004 eq. 8-9); their noise from the speed's and the sideslip's
             cb, sb = np.cos(b[k]), np.sin(b[k])
-            x, P = _kf_update(x, P, 0, V[k] * cb, (noise.speed_std * cb) ** 2 + (V[k] * sb * bs[k]) ** 2)
-            x, P = _kf_update(x, P, 1, V[k] * sb, (noise.speed_std * sb) ** 2 + (V[k] * cb * bs[k]) ** 2)
+            x, P = _kf_update(x, P, LAYER2.index("vx"), V[k] * cb,
+                              (noise.speed_std * cb) ** 2 + (V[k] * sb * bs[k]) ** 2)
+            x, P = _kf_update(x, P, LAYER2.index("vy"), V[k] * sb,
+                              (noise.speed_std * sb) ** 2 + (V[k] * cb * bs[k]) ** 2)
         out[k] = x
-    return {"vx": out[:, 0], "vy": out[:, 1], "roll": out[:, 2], "roll_rate": out[:, 3], "d": out[:, 4]}
+    return LAYER2.columns(out)
 
 
 def roll_kf(p: VehicleParams, t, ay, roll_rate, noise: Layer2Noise = Layer2Noise()) -> np.ndarray:
@@ -103,8 +112,7 @@ def roll_kf(p: VehicleParams, t, ay, roll_rate, noise: Layer2Noise = Layer2Noise
     for k in range(len(t)):
         dt = dt0 if k == 0 else t[k] - t[k - 1]
         F = np.eye(2) + np.array([[0.0, 1.0], [-kx / ix, -cx / ix]]) * dt
-        x = F @ x + np.array([0.0, msh / ix * ay[k]]) * dt
-        P = F @ P @ F.T + np.diag([0.0, noise.q_roll_acc * dt])
+        x, P = predict(x, P, F, np.diag([0.0, noise.q_roll_acc * dt]), w=np.array([0.0, msh / ix * ay[k]]) * dt)
         x, P = _kf_update(x, P, 1, pr[k], noise.roll_rate_std ** 2)
         out[k] = x[0]
     return out
@@ -115,17 +123,17 @@ def velocity_kf(t, ax, ay, yaw_rate, wheel_speed, noise: Layer2Noise = Layer2Noi
     """Kinematic two-state velocity KF (v_x, v_y): accelerometers and yaw rate as inputs, the
     non-driven wheels' speed as the v_x measurement every sample (no roll correction)."""
     t, ax, ay, r, w = (np.asarray(a, float) for a in (t, ax, ay, yaw_rate, wheel_speed))
-    x, P = np.array([w[0], 0.0]), np.diag([1.0, 0.25])
+    x, P = VELOCITY.pack(vx=w[0], vy=0.0), np.diag([1.0, 0.25])
     out = np.empty((len(t), 2))
     dt0 = np.median(np.diff(t)) if len(t) > 1 else 1e-3
     for k in range(len(t)):
         dt = dt0 if k == 0 else t[k] - t[k - 1]
         F = np.eye(2) + np.array([[0.0, r[k]], [-r[k], 0.0]]) * dt
-        x = F @ x + np.array([ax[k], ay[k]]) * dt
-        P = F @ P @ F.T + np.eye(2) * (noise.accel_std * dt) ** 2
-        x, P = _kf_update(x, P, 0, w[k], wheel_speed_std ** 2)
+        x, P = predict(x, P, F, np.eye(2) * (noise.accel_std * dt) ** 2, w=np.array([ax[k], ay[k]]) * dt)
+        x, P = _kf_update(x, P, VELOCITY.index("vx"), w[k], wheel_speed_std ** 2)
         out[k] = x
-    return out[:, 0], out[:, 1]
+    v = VELOCITY.columns(out)
+    return v["vx"], v["vy"]
 
 
 def roll_model_error(p: VehicleParams, error: float = 0.3) -> VehicleParams:

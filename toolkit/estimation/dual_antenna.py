@@ -27,7 +27,9 @@ import numpy as np
 
 from evstab.plants.backend import NUMPY
 from evstab.plants.params import G
-from .kalman import INPUTS, _col, scalar_update, wrap
+from evstab.plants.signals import Layout, Signal
+from .core import column as _col, predict, scalar_update
+from .kalman import INPUTS, outputs, wrap
 from .spec import FilterDesign
 
 
@@ -39,28 +41,30 @@ def bank_estimate(p, roll_total, speed, yaw_rate):
     return np.asarray(roll_total, float) - body
 
 N = 6
-STATE_SIZE = N + N * N + 1
+STATE = Layout("dual-antenna state", [
+    Signal("x", "-", "u_y [m/s], b_ay [m/s^2], psi [rad], b_r [rad/s], phi_t [rad], b_p [rad/s]", N),
+    Signal("P", "-", "its covariance, column-major", N * N), Signal("init", "-", "1 once the heading is set")])
+STATE_SIZE = STATE.size
 NEEDS = ("ay", "roll_rate", "gps_speed", "gps_heading")
 """Columns the filter needs; ``gps_roll`` (a third antenna's total roll) is used where present."""
 
 
 def initial_state(d: FilterDesign) -> np.ndarray:
-    z = np.zeros(STATE_SIZE)
-    z[N:N + N * N] = np.diag([1.0, 0.5 ** 2, np.pi ** 2, 0.01 ** 2, np.radians(5.0) ** 2, 0.01 ** 2]).ravel(order="F")
-    return z
+    P0 = np.diag([1.0, 0.5 ** 2, np.pi ** 2, 0.01 ** 2, np.radians(5.0) ** 2, 0.01 ** 2])
+    return STATE.pack(x=np.zeros(N), P=P0.ravel(order="F"), init=0.0)
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
     nz = d.noise
-    g = {name: u[i] for i, name in enumerate(INPUTS)}
+    g = INPUTS.as_dict(u)
     dt, ux, gyro, ay, pm = g["dt"], g["speed"], g["yaw_rate"], g["ay"], g["roll_rate"]
-    x = z[0:N]
-    P = o.reshape(z[N:N + N * N], N, N)
-    init = z[N + N * N]
+    zs = STATE.unpack(z)
+    x = zs.x
+    P = o.reshape(zs.P, N, N)
+    init = zs.init
     uy, bay, psi, br, phi, bp = (x[i] for i in range(N))
     r = gyro - br
     ux_m = o.fmax(ux, nz.min_speed)
-    x = o.stack([uy + (ay - r * ux - G * phi - bay) * dt, bay, psi + r * dt, br, phi + (pm - bp) * dt, bp])
     F = o.eye(N) + o.zeros(N, N)
     F[0, 1], F[0, 3], F[0, 4] = -dt, ux * dt, -G * dt
     F[2, 3] = -dt
@@ -72,7 +76,10 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     Q[3, 3] = nz.q_bias * dt
     Q[4, 4] = (nz.gyro_std * dt) ** 2
     Q[5, 5] = nz.q_bias * dt
-    P = F @ P @ F.T + Q
+    # the nonlinear kinematics propagate the state, their Jacobian F the covariance
+    x_next = o.stack([uy + (ay - r * ux - G * phi - bay) * dt, bay, psi + r * dt, br, phi + (pm - bp) * dt, bp])
+    _, P = predict(x, P, F, Q, o, N)
+    x = x_next
     sats_ok = g["sats"] >= 4
     have_h = (g["heading_valid"] > 0.5) * sats_ok
     have_r = (g["gps_roll_valid"] > 0.5) * sats_ok
@@ -95,10 +102,8 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     r_c = (nz.gps_velocity_std * g["hdop"] / U) ** 2
     x, P, _, _ = scalar_update(x, P, hc, wrap(g["course"] - pred, o), r_c, o, N, gate=usable)
     init_n = o.fmax(init, have_h)
-    z_next = o.concat([x, o.flatten(P), o.stack([init_n])])
+    z_next = STATE.pack(o=o, x=x, P=o.flatten(P), init=init_n)
     beta = o.arctan2(x[0], ux_m)
-    nan = float("nan")
-    zero = 0.0 * ux
-    y = o.stack([beta, gyro - x[3], x[2], o.sqrt(o.fmax(P[0, 0], 0.0)) / ux_m, zero + nan, zero + nan, x[3], usable,
-                 zero + nan, zero, zero + nan, zero + nan, ux + zero, x[0], x[4]])
+    y = outputs(o, ux, beta=beta, yaw_rate=gyro - x[3], yaw=x[2], beta_std=o.sqrt(o.fmax(P[0, 0], 0.0)) / ux_m,
+                gyro_bias=x[3], gps_used=usable, bias_alarm=0.0 * ux, vx=ux + 0.0 * ux, vy=x[0], roll=x[4])
     return z_next, y

@@ -37,16 +37,55 @@ from __future__ import annotations
 import numpy as np
 
 from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.signals import Layout, Signal
+from .core import column as _col, diag as _diag, dot as _dot, predict_delta, scalar_update
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
-INPUTS = ("dt", "speed", "steer", "yaw_moment", "yaw_rate", "fix", "course", "hdop", "sats", "ay", "gyro_ok",
-          "ax", "gps_speed", "heading", "heading_valid", "roll_rate", "gps_roll", "gps_roll_valid")
+INPUTS = Layout("filter inputs", [
+    Signal("dt", "s", "time since the previous sample"),
+    Signal("speed", "m/s", "vehicle speed from the non-driven wheels"),
+    Signal("steer", "rad", "front road-wheel angle, + left"),
+    Signal("yaw_moment", "N m", "direct yaw moment applied, + turns left"),
+    Signal("yaw_rate", "rad/s", "gyro yaw rate"),
+    Signal("fix", "-", "1 on a sample with a new GPS fix"),
+    Signal("course", "rad", "GPS course over ground (read only where fix = 1)"),
+    Signal("hdop", "-", "horizontal dilution of precision of the fix"),
+    Signal("sats", "-", "satellites used in the fix"),
+    Signal("ay", "m/s^2", "lateral acceleration, + left"),
+    Signal("gyro_ok", "-", "0 while a monitor has found the gyro stuck (absent: always 1)", optional=True),
+    Signal("ax", "m/s^2", "longitudinal acceleration", optional=True),
+    Signal("gps_speed", "m/s", "GPS ground speed", optional=True),
+    Signal("heading", "rad", "dual-antenna GPS heading", optional=True),
+    Signal("heading_valid", "-", "1 where the heading is measured", optional=True),
+    Signal("roll_rate", "rad/s", "roll gyro", optional=True),
+    Signal("gps_roll", "rad", "total roll from a third antenna", optional=True),
+    Signal("gps_roll_valid", "-", "1 where gps_roll is measured", optional=True),
+])
 """The Kalman step reads the first 11 (``gyro_ok`` optional); the rest feed other methods (``two-stage``)."""
-OUTPUTS = ("beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis", "bias_alarm",
-           "course_resid", "gyro_resid", "vx", "vy", "roll")
-"""``course_resid``: the course innovation over its predicted standard deviation (NaN without a
-usable fix); ``gyro_resid``: the gyro innovation [rad/s] before its update (seed 001's two
-residuals, for :mod:`toolkit.estimation.diagnostics`)."""
+OUTPUTS = Layout("filter outputs", [
+    Signal("beta", "rad", "sideslip at the CG"),
+    Signal("yaw_rate", "rad/s", "yaw rate"),
+    Signal("yaw", "rad", "yaw angle, continuous"),
+    Signal("beta_std", "rad", "standard deviation of the sideslip estimate"),
+    Signal("d1", "rad/s", "disturbance on the sideslip equation"),
+    Signal("d2", "rad/s^2", "disturbance on the yaw-rate equation"),
+    Signal("gyro_bias", "rad/s", "gyro bias"),
+    Signal("gps_used", "-", "1 when this sample's fix was used"),
+    Signal("nis", "-", "normalised innovation squared of the course fix"),
+    Signal("bias_alarm", "-", "1 when the gyro-bias CUSUM alarmed"),
+    Signal("course_resid", "-", "course innovation over its predicted standard deviation"),
+    Signal("gyro_resid", "rad/s", "gyro innovation before its update"),
+    Signal("vx", "m/s", "body longitudinal velocity"),
+    Signal("vy", "m/s", "body lateral velocity"),
+    Signal("roll", "rad", "roll angle"),
+])
+"""Entries a method does not estimate are NaN. ``course_resid``: NaN without a usable fix;
+``gyro_resid``: seed 001's second residual (for :mod:`toolkit.estimation.diagnostics`)."""
+
+
+def outputs(o, like, **values):
+    """The output vector of a filter step: ``values`` by name, NaN for the entries not given."""
+    return OUTPUTS.pack(values, o, like=like, fill=float("nan"))
 
 
 def watches_bias(d: FilterDesign) -> bool:
@@ -54,26 +93,30 @@ def watches_bias(d: FilterDesign) -> bool:
     return bool(d.bias and d.gating)
 
 
-def layout(d: FilterDesign) -> dict:
-    """Offsets of the parts of the flat filter state."""
-    n, nb = d.n, d.latency_samples
-    off = {"x": 0, "P": n, "rejects": n + n * n, "eps": n + n * n + 1, "init": n + n * n + 2,
-           "gain": n + n * n + 3}
-    off["cusum"] = off["gain"] + n
-    off["buf"] = off["cusum"] + (2 if watches_bias(d) else 0)
-    off["size"] = off["buf"] + nb
-    return off
+def layout(d: FilterDesign) -> Layout:
+    """The parts of the flat filter state."""
+    n = d.n
+    return Layout("filter state", [
+        Signal("x", "-", f"the state ({', '.join(d.states)})", n),
+        Signal("P", "-", "its covariance, column-major", n * n),
+        Signal("rejects", "-", "gated fixes in a row"),
+        Signal("eps", "rad", "the last course innovation (inter-sample residual prediction)"),
+        Signal("init", "-", "1 once the heading is initialised"),
+        Signal("gain", "-", "the gain of the last accepted fix", n),
+        Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if watches_bias(d) else 0),
+        Signal("buf", "rad", "the predicted course of the last samples (latency)", d.latency_samples),
+    ])
 
 
 def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) -> np.ndarray:
     lay = layout(d)
-    z = np.zeros(lay["size"])
+    z = lay.zeros()
     x = np.zeros(d.n)
     x[d.index("yaw")] = yaw0
     x[d.index("yaw_rate")] = yaw_rate0
-    z[:d.n] = x
-    z[lay["P"]:lay["P"] + d.n * d.n] = d.initial_covariance().ravel(order="F")
-    z[lay["buf"]:] = yaw0
+    z[lay.slot("x")] = x
+    z[lay.slot("P")] = d.initial_covariance().ravel(order="F")
+    z[lay.slot("buf")] = yaw0
     return z
 
 
@@ -99,52 +142,6 @@ def discretize_delta(A, dt, o, n):
     return E, Gam
 
 
-def _dot(a, b, o):
-    return (a.T @ b) if o is CASADI else a @ b
-
-
-def _col(v, o):
-    """A column of numbers (or, for casadi, of numbers and symbols: tuned noise intensities)."""
-    if o is CASADI:
-        import casadi as ca
-        return ca.vertcat(*[ca.SX(e) if isinstance(e, ca.SX) else float(e) for e in v])
-    return np.asarray(v, float)
-
-
-def scalar_update(x, P, h, innov, r, o, n, gate=None):
-    """Scalar measurement update in Joseph form; returns (x, P, S, K).
-
-    ``(I - K h) P (I - K h)^T + K r K^T`` is evaluated in its expanded, O(n^2) form
-    ``P - K m^T - m K^T + (h m + r) K K^T`` with ``m = P h^T``: the same expression for
-    any gain ``K`` (so it keeps the Joseph form's validity and exact symmetry) without
-    the two n x n x n products. ``gate`` (0 or 1, number or symbol) multiplies the gain:
-    with 0 the update leaves ``x`` and ``P`` exactly as they were, with 1 it is the
-    plain update, so a conditional update needs no selection of every element.
-    The returned ``K`` is the ungated gain.
-    """
-    m = P @ h
-    S = _dot(h, m, o) + r
-    K = m * (1.0 / S)
-    Kg = K if gate is None else K * gate
-    return x + Kg * innov, _joseph(P, Kg, m, S, o, n), S, K
-
-
-def _joseph(P, K, m, S, o, n):
-    """``P - K m^T - m K^T + S K K^T`` on the upper triangle, mirrored (exactly symmetric,
-    half the products)."""
-    if o is not CASADI:
-        D = np.triu(P - np.outer(K, m) - np.outer(m, K) + np.outer(K, K) * S)
-        return D + np.triu(D, 1).T
-    import casadi as ca
-    out = ca.SX.zeros(n, n)
-    for i in range(n):
-        for j in range(i, n):
-            e = P[i, j] - K[i] * m[j] - m[i] * K[j] + K[i] * K[j] * S
-            out[i, j] = e
-            out[j, i] = e
-    return out
-
-
 def wrap(a, o):
     return o.arctan2(o.sin(a), o.cos(a))
 
@@ -157,12 +154,14 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     use it there to save the work (the compiled runner switches between the two).
     """
     n, lay, nz = d.n, layout(d), d.noise
-    x = z[0:n]
-    P = o.reshape(z[lay["P"]:lay["P"] + n * n], n, n)
-    rejects, eps, init = z[lay["rejects"]], z[lay["eps"]], z[lay["init"]]
-    gain = z[lay["gain"]:lay["gain"] + n]
-    dt, v, steer, nzm, gyro, fix, course, hdop, sats = (u[i] for i in range(9))
-    gyro_ok = u[10] if _length(u, o) > 10 else None  # None: always working (callers with 10 inputs)
+    zs = lay.unpack(z)
+    x = zs.x
+    P = o.reshape(zs.P, n, n)
+    rejects, eps, init, gain = zs.rejects, zs.eps, zs.init, zs.gain
+    g = INPUTS.unpack(u)
+    dt, v, steer, nzm, gyro, fix, course, hdop, sats = g.dt, g.speed, g.steer, g.yaw_moment, g.yaw_rate, g.fix, \
+        g.course, g.hdop, g.sats
+    gyro_ok = g.gyro_ok  # None: always working (callers without the entry)
     ib, ir, iy = d.index("beta"), d.index("yaw_rate"), d.index("yaw")
 
     # 1. predict with the model rediscretised at this speed
@@ -171,7 +170,6 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     A, B = continuous_model(d, v_m, o, dynamic=dyn)
     E, Gam = discretize_delta(A, dt, o, n)
     uin = o.stack([steer, nzm])
-    x = x + (E @ x + Gam @ (B @ uin))
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
@@ -179,7 +177,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         for s in ("d1", "d2"):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
-    P = _propagate(E, P, o, n) + _diag(q * dt, o, n)
+    x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=Gam @ (B @ uin))
     if d.steer_noise:  # seed 001: process noise enters through the steer input, Q_d ~ b q b^T dt
         b_st = B[:, 0]
         P = P + (b_st @ b_st.T if o is CASADI else np.outer(b_st, b_st)) * (nz.q_steer * dt)
@@ -209,7 +207,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     pred_now = _dot(hc, x, o)
     nb = d.latency_samples
     if nb > 0:
-        buf = z[lay["buf"]:lay["buf"] + nb]
+        buf = zs.buf
         pred = buf[nb - 1]
     else:
         pred = pred_now
@@ -245,8 +243,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         x, P = o.if_else(first > 0.5, x_first, x), o.if_else(first > 0.5, P_first, P)
         if watches_bias(d):
             calm = (o.fabs(gyro - x[d.index("gyro_bias")]) < nz.bias_cusum_rate_max) * \
-                (o.fabs(u[9]) < nz.bias_cusum_ay_max)
-            P, cusum, alarm = _bias_watch(d, z[lay["cusum"]:lay["cusum"] + 2], resid, accept * calm, relock, P, o)
+                (o.fabs(g.ay) < nz.bias_cusum_ay_max)
+            P, cusum, alarm = _bias_watch(d, zs.cusum, resid, accept * calm, relock, P, o)
         init = o.fmax(init, usable)
 
     else:  # no fix on this sample: nothing of the course update happens
@@ -254,7 +252,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         accept, nis, K = 0.0 * v, 0.0 * v, gain
         resid = 0.0 * v
         if watches_bias(d):
-            cusum, alarm = z[lay["cusum"]:lay["cusum"] + 2], 0.0 * v
+            cusum, alarm = zs.cusum, 0.0 * v
 
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
@@ -268,28 +266,17 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
 
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
-    parts = [x, o.flatten(P), o.stack([rejects, eps, init]), gain]
-    if watches_bias(d):
-        parts.append(cusum)
+    extra = {"cusum": cusum} if watches_bias(d) else {}
     if nb > 0:
-        parts.append(buf_next)
-    z_next = o.concat(parts)
+        extra["buf"] = buf_next
+    z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
     nan = float("nan")
-    zero = 0.0 * v
-    y = o.stack([
-        x[ib], x[ir], x[iy], o.sqrt(o.fmax(P[ib, ib], 0.0)),
-        x[d.index("d1")] if "d1" in d.states else zero + nan,
-        x[d.index("d2")] if "d2" in d.states else zero + nan,
-        x[d.index("gyro_bias")] if d.bias else zero + nan,
-        o.fmax(accept, first), o.if_else(usable > 0.5, nis, nan),
-        alarm if watches_bias(d) else zero,
-        o.if_else(usable > 0.5, resid, nan), gyro_resid, zero + nan, zero + nan, zero + nan,
-    ])
+    est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
+    y = outputs(o, v, beta=x[ib], yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
+                gps_used=o.fmax(accept, first), nis=o.if_else(usable > 0.5, nis, nan),
+                bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
+                gyro_resid=gyro_resid)
     return z_next, y
-
-
-def _length(u, o):
-    return u.numel() if o is CASADI else len(u)
 
 
 def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):
@@ -311,28 +298,3 @@ def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):
     keep = (1.0 - alarm) * (1.0 - relock)
     cusum_next = o.stack([gp * keep, gm * keep])
     return P, cusum_next, alarm
-
-
-def _propagate(E, P, o, n):
-    """``F P F^T`` with ``F = I + E``, as ``P + (M + M^T + M E^T)``, ``M = E P`` (see
-    :func:`discretize_delta`). For casadi the upper triangle is built and mirrored, which
-    halves the work in the generated code; numpy mirrors its upper triangle the same way)."""
-    M = E @ P
-    if o is not CASADI:
-        D = np.triu(P + (M + M.T + M @ E.T))
-        return D + np.triu(D, 1).T
-    import casadi as ca
-    out = ca.SX.zeros(n, n)
-    for i in range(n):
-        for j in range(i, n):
-            e = P[i, j] + (M[i, j] + M[j, i] + ca.dot(M[i, :].T, E[j, :].T))
-            out[i, j] = e
-            out[j, i] = e
-    return out
-
-
-def _diag(q, o, n):
-    if o is CASADI:
-        import casadi as ca
-        return ca.diag(q)
-    return np.diag(q)

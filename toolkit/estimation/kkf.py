@@ -18,36 +18,52 @@ from __future__ import annotations
 import numpy as np
 
 from evstab.plants.backend import NUMPY
-from .kalman import wrap
+from evstab.plants.signals import Layout, Signal
+
+from .core import column, predict, scalar_update
+from .kalman import INPUTS, outputs, wrap
 from .spec import FilterDesign
 
-STATE_SIZE = 9
+STATE = Layout("KKF state", [
+    Signal("x", "-", "heading psi [rad], gyro bias b [rad/s]", 2), Signal("P", "-", "its covariance, column-major", 4),
+    Signal("beta", "rad", "the sideslip of the last fix"), Signal("beta_var", "rad^2", "its variance"),
+    Signal("init", "-", "1 once the heading is initialised"),
+])
+STATE_SIZE = STATE.size
 
 
 def initial_state(d: FilterDesign) -> np.ndarray:
-    z = np.zeros(STATE_SIZE)
-    z[2] = np.pi ** 2  # heading unknown until the first fix
-    z[5] = d.initial_covariance()[d.index("gyro_bias"), d.index("gyro_bias")]
-    z[7] = np.deg2rad(2.0) ** 2
-    return z
+    ib = d.index("gyro_bias")
+    # heading unknown until the first fix
+    P0 = np.diag([np.pi ** 2, d.initial_covariance()[ib, ib]])
+    return STATE.pack(x=np.zeros(2), P=P0.ravel(order="F"), beta=0.0, beta_var=np.deg2rad(2.0) ** 2, init=0.0)
+
+
+def heading_predict(x, P, gyro, dt, gyro_std, q_bias, o=NUMPY):
+    """The time update of the heading / gyro-bias filter ``(psi, b)``: ``psi' = r_gyro - b`` with the gyro
+    as input (its white noise ``gyro_std`` per sample becomes heading process noise, ``gyro_std^2 dt^2``),
+    ``b`` a random walk of intensity ``q_bias``; ``F = [[1, -dt], [0, 1]]``. Shared with seed 000's KF1
+    (:mod:`toolkit.estimation.two_stage`)."""
+    F = o.eye(2) + o.zeros(2, 2)
+    F[0, 1] = -dt
+    Q = o.zeros(2, 2)
+    Q[0, 0] = (gyro_std * dt) ** 2
+    Q[1, 1] = q_bias * dt
+    return predict(x, P, F, Q, o, 2, w=o.stack([gyro * dt, 0.0 * dt]))
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
     """One sample: ``(z, u) -> (z_next, y)``, ``u`` and ``y`` as :data:`toolkit.estimation.kalman.INPUTS`
     and ``OUTPUTS``."""
     nz = d.noise
-    dt, v, gyro, fix, course, hdop, sats = u[0], u[1], u[4], u[5], u[6], u[7], u[8]
-    psi, b = z[0], z[1]
-    p11, p21, p12, p22 = z[2], z[3], z[4], z[5]
-    beta, beta_var, init = z[6], z[7], z[8]
-    rate = gyro - b
-    # time update: psi += (gyro - b) dt; F = [[1, -dt], [0, 1]]
-    psi = psi + rate * dt
-    q_psi = (nz.gyro_std * dt) ** 2
-    n11 = p11 - dt * (p21 + p12) + dt * dt * p22 + q_psi
-    n12 = p12 - dt * p22
-    n22 = p22 + nz.q_bias * dt
-    p11, p12, p21, p22 = n11, n12, n12, n22
+    g = INPUTS.unpack(u)
+    dt, v, gyro, fix, course, hdop, sats = g.dt, g.speed, g.yaw_rate, g.fix, g.course, g.hdop, g.sats
+    zs = STATE.unpack(z)
+    x, P = zs.x, o.reshape(zs.P, 2, 2)
+    beta, beta_var, init = zs.beta, zs.beta_var, zs.init
+    rate = gyro - x[1]
+    x, P = heading_predict(x, P, gyro, dt, nz.gyro_std, nz.q_bias, o)
+    psi = x[0]
     # the course at a usable fix
     usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
     sd = o.fmax(nz.gps_velocity_std * hdop / o.fmax(v, nz.gps_min_speed), nz.course_std_min) if d.hdop_noise \
@@ -55,31 +71,24 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     r_c = sd * sd
     first = usable * (init < 0.5)
     straight = o.fabs(rate) < nz.kkf_turn_rate
-    upd = usable * straight * (1.0 - first)
+    upd = usable * straight * (1.0 - first)  # 0/1: the update happens or leaves everything as it was
     innov = wrap(course - psi, o)
-    S = p11 + r_c
-    k1, k2 = p11 / S, p21 / S
-    g = upd  # 0/1: the update happens or leaves everything as it was
-    psi_u = psi + g * k1 * innov
-    b_u = b + g * k2 * innov
-    # Joseph form for H = [1, 0]: P - K m^T - m K^T + S K K^T, m = P H^T = (p11, p21)
-    u11 = p11 - g * (2 * k1 * p11 - S * k1 * k1)
-    u12 = p12 - g * (k1 * p21 + p11 * k2 - S * k1 * k2)
-    u22 = p22 - g * (2 * k2 * p21 - S * k2 * k2)
+    xu, Pu, S, _ = scalar_update(x, P, column([1.0, 0.0], o), innov, r_c, o, 2, gate=upd)
     # the first fix sets the heading (sideslip taken as zero), its variance the fix's
-    psi_n = o.if_else(first > 0.5, course, psi_u)
-    u11 = o.if_else(first > 0.5, r_c, u11)
-    u12 = o.if_else(first > 0.5, 0.0 * v, u12)
+    psi_n = o.if_else(first > 0.5, course, xu[0])
+    u11 = o.if_else(first > 0.5, r_c, Pu[0, 0])
+    u12 = o.if_else(first > 0.5, 0.0 * v, Pu[0, 1])
     # sideslip: course - heading at every usable fix (after the update when straight), held between
     turning_fix = usable * (1.0 - first)
     beta_n = o.if_else(turning_fix > 0.5, wrap(course - psi_n, o), beta)
     beta_var_n = o.if_else(turning_fix > 0.5, r_c + u11, beta_var)
     init_n = o.fmax(init, usable)
-    z_next = o.stack([psi_n, b_u, u11, u12, u12, u22, beta_n, beta_var_n, init_n])
+    b_u = xu[1]
+    z_next = STATE.pack(o=o, x=o.stack([psi_n, b_u]), P=o.stack([u11, u12, u12, Pu[1, 1]]), beta=beta_n,
+                        beta_var=beta_var_n, init=init_n)
     nan = float("nan")
-    zero = 0.0 * v
     resid = innov / o.sqrt(S)
-    y = o.stack([beta_n, gyro - b_u, psi_n, o.sqrt(beta_var_n), zero + nan, zero + nan, b_u,
-                 o.fmax(upd, first), o.if_else(upd > 0.5, resid * resid, nan), zero,
-                 o.if_else(upd > 0.5, resid, nan), zero + nan, zero + nan, zero + nan, zero + nan])
+    y = outputs(o, v, beta=beta_n, yaw_rate=gyro - b_u, yaw=psi_n, beta_std=o.sqrt(beta_var_n), gyro_bias=b_u,
+                gps_used=o.fmax(upd, first), nis=o.if_else(upd > 0.5, resid * resid, nan), bias_alarm=0.0 * v,
+                course_resid=o.if_else(upd > 0.5, resid, nan))
     return z_next, y

@@ -15,13 +15,16 @@ from __future__ import annotations
 import numpy as np
 
 from evstab.plants.backend import NUMPY
+from evstab.plants.signals import Layout, Signal
+from .kalman import INPUTS, outputs
 from .spec import FilterDesign, lateral_coefficients
 
-STATE_SIZE = 3
+STATE = Layout("observer state", [Signal("beta", "rad"), Signal("yaw_rate", "rad/s"), Signal("yaw", "rad")])
+STATE_SIZE = STATE.size
 
 
 def initial_state(d: FilterDesign) -> np.ndarray:
-    return np.zeros(STATE_SIZE)
+    return STATE.zeros()
 
 
 def gains(d: FilterDesign, v, o=NUMPY):
@@ -38,9 +41,10 @@ def gains(d: FilterDesign, v, o=NUMPY):
 
 
 def step(d: FilterDesign, z, u, o=NUMPY):
-    dt, v, steer, nzm, gyro = (u[i] for i in range(5))
-    ay = u[9]
-    beta, r, yaw = z[0], z[1], z[2]
+    g = INPUTS.unpack(u)
+    dt, v, steer, nzm, gyro, ay = g.dt, g.speed, g.steer, g.yaw_moment, g.yaw_rate, g.ay
+    zs = STATE.unpack(z)
+    beta, r, yaw = zs.beta, zs.yaw_rate, zs.yaw
     v_m = o.fmax(v, d.noise.min_speed)
     L, (a11, a12, a21, a22, b11, b21, b22), (c21, c22) = gains(d, v_m, o)
     e_r = gyro - r
@@ -52,7 +56,5 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     beta_n = o.if_else(dyn, beta + dt * db, beta)
     r_n = o.if_else(dyn, r + dt * dr, gyro)
     yaw_n = yaw + dt * gyro
-    nan = float("nan")
-    zero = 0.0 * v
-    y = o.stack([beta_n, r_n, yaw_n, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero + nan, zero, zero + nan, gyro - r, zero + nan, zero + nan, zero + nan])
-    return o.stack([beta_n, r_n, yaw_n]), y
+    y = outputs(o, v, beta=beta_n, yaw_rate=r_n, yaw=yaw_n, bias_alarm=0.0 * v, gyro_resid=gyro - r)
+    return STATE.pack(o=o, beta=beta_n, yaw_rate=r_n, yaw=yaw_n), y

@@ -28,6 +28,8 @@ import scipy.optimize
 from evstab.plants import VehicleParams
 from evstab.plants.bicycle import lateral_coefficients
 
+from .core import posterior
+
 PAPER_TABLE_I = (
     # rate [Hz], sigma_course [deg], sigma_gyro [deg/s], predicted sigma_r [deg/s], predicted sigma_beta [deg]
     (5.0, 0.0348, 0.0636, 0.0671, 0.0086),
@@ -93,9 +95,9 @@ def predicted_errors(p: VehicleParams, speed: float, rate: float, sigma_course: 
     Hk = H[:, :k]
     P = scipy.linalg.solve_discrete_are(F.T, Hk.T, Q, R)
     P = 0.5 * (P + P.T)
-    post = P - P @ Hk.T @ np.linalg.solve(Hk @ P @ Hk.T + R, Hk @ P)
+    post, _ = posterior(P, Hk, R)
     full = [np.zeros((4, 4)), np.zeros((4, 4))]
-    full[0][:k, :k], full[1][:k, :k] = P, 0.5 * (post + post.T)
+    full[0][:k, :k], full[1][:k, :k] = P, post
     return Predicted(rate, full[0], full[1])
 
 

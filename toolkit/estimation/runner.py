@@ -55,13 +55,13 @@ def _step_function(d: FilterDesign):
     in the generated C) between the full step and the step without the course
     update, which is exact on the ~99.5 % of samples that carry no fix.
     """
-    nin = len(kalman.INPUTS)
+    nin = kalman.INPUTS.size
     mod = _plain(d)
     if mod is not None:
         z, u = ca.SX.sym("z", mod.STATE_SIZE), ca.SX.sym("u", nin)
         zn, y = mod.step(d, z, u, CASADI)
         return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
-    size = kalman.layout(d)["size"]
+    size = kalman.layout(d).size
     variants = []
     for with_course in (False, True):
         z, u = ca.SX.sym("z", size), ca.SX.sym("u", nin)
@@ -70,7 +70,7 @@ def _step_function(d: FilterDesign):
     switch = ca.Function.conditional("est_switch", [variants[0]], variants[1])
     z, u = ca.MX.sym("z", size), ca.MX.sym("u", nin)
     # index 0 -> no fix, anything else -> the default (full) step
-    zn, y = switch(ca.if_else(u[5] > 0.5, 1, 0), z, u)
+    zn, y = switch(ca.if_else(u[kalman.INPUTS.index("fix")] > 0.5, 1, 0), z, u)
     return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
 
 
@@ -99,7 +99,7 @@ class CompiledFilter:
         """``(z0, U) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use)."""
         if self._chunk_fn is None:
             acc = self.step_fn.mapaccum("est_acc", CHUNK)
-            z0, U = ca.MX.sym("z0", self.step_fn.size1_in(0)), ca.MX.sym("U", len(kalman.INPUTS), CHUNK)
+            z0, U = ca.MX.sym("z0", self.step_fn.size1_in(0)), ca.MX.sym("U", kalman.INPUTS.size, CHUNK)
             Z, Y = acc(z0, U)
             self._chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
         return self._chunk_fn
@@ -108,7 +108,7 @@ class CompiledFilter:
         """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS)), with ``final_state`` also the
         filter state after the last sample (N a multiple of :data:`CHUNK` for the compiled backends)."""
         n = U.shape[0]
-        ny = len(kalman.OUTPUTS)
+        ny = kalman.OUTPUTS.size
         if self.backend == "numpy":
             Y = np.empty((n, ny))
             z = z0.copy()
@@ -118,7 +118,7 @@ class CompiledFilter:
                 if mod is not None:
                     z, Y[k] = mod.step(d, z, U[k], NUMPY)
                 else:
-                    z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, 5] > 0.5))
+                    z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, kalman.INPUTS.index("fix")] > 0.5))
             return (Y, z) if final_state else Y
         return run_chunks(z0, [U], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
                           casadi_fn=self.chunk_fn, fix_column=5, final_state=final_state)
@@ -135,8 +135,8 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     """Build the (N, len(INPUTS)) input array; NaN course = no fix; missing HDOP 1, satellites unknown = usable;
     ``gyro_ok`` (0/1 per sample, e.g. from :mod:`toolkit.estimation.monitor`) defaults to a working gyro."""
     n = len(t)
-    U = np.zeros((n, len(kalman.INPUTS)))
-    col = {name: U[:, i] for i, name in enumerate(kalman.INPUTS)}  # views: writing them fills U
+    U = kalman.INPUTS.zeros(n)
+    col = kalman.INPUTS.columns(U)  # views: writing them fills U
 
     def put(name, values, missing=0.0):
         col[name][:] = missing if values is None else np.nan_to_num(np.asarray(values, float), nan=missing)
@@ -185,8 +185,8 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
                             ax=get("ax"), gps_speed=get("gps_speed"), gps_heading=get("gps_heading"),
                             roll_rate=get("roll_rate"), gps_roll=get("gps_roll"), dt0=d.dt_nominal)
     cf = compiled_filter(d, backend)
-    Y = cf.run(U, initial_state(d, float(U[0, 4])))
-    out = {name: Y[:, i] for i, name in enumerate(kalman.OUTPUTS)}
+    Y = cf.run(U, initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0])))
+    out = kalman.OUTPUTS.columns(Y)
     if d.method == "double-layer":  # layer 2 on layer 1's (amrkf's) sideslip and yaw rate
         from .double_layer import layer2
         l2 = layer2(d.params, cols["t"], get("ax", np.zeros(len(U))), get("ay", np.zeros(len(U))), out["yaw_rate"],

@@ -24,18 +24,24 @@ from __future__ import annotations
 import numpy as np
 
 from evstab.plants.backend import NUMPY
-from .kalman import INPUTS, _col, scalar_update, wrap
+from evstab.plants.signals import Layout, Signal
+from .core import column as _col, predict, scalar_update
+from .kalman import INPUTS, outputs, wrap
+from .kkf import heading_predict
 from .spec import FilterDesign
 
-STATE_SIZE = 2 + 4 + 4 + 16 + 1
+STATE = Layout("two-stage state", [
+    Signal("x1", "-", "KF1: heading [rad], gyro bias [rad/s]", 2), Signal("P1", "-", "its covariance", 4),
+    Signal("x2", "-", "KF2: v_x, v_y [m/s], accelerometer biases [m/s^2]", 4), Signal("P2", "-", "its covariance", 16),
+    Signal("init", "-", "1 once the heading is initialised"),
+])
+STATE_SIZE = STATE.size
 NEEDS = ("ax", "ay", "gps_speed", "gps_heading")
 
 
 def initial_state(d: FilterDesign) -> np.ndarray:
-    z = np.zeros(STATE_SIZE)
-    z[2:6] = np.diag([np.pi ** 2, 0.01 ** 2]).ravel(order="F")
-    z[10:26] = np.diag([1.0, 1.0, 0.5 ** 2, 0.5 ** 2]).ravel(order="F")
-    return z
+    return STATE.pack(x1=np.zeros(2), P1=np.diag([np.pi ** 2, 0.01 ** 2]).ravel(order="F"), x2=np.zeros(4),
+                      P2=np.diag([1.0, 1.0, 0.5 ** 2, 0.5 ** 2]).ravel(order="F"), init=0.0)
 
 
 def sideslip_at(vx, vy, r, x: float, y: float = 0.0):
@@ -46,23 +52,17 @@ def sideslip_at(vx, vy, r, x: float, y: float = 0.0):
 
 def step(d: FilterDesign, z, u, o=NUMPY):
     nz = d.noise
-    g = {name: u[i] for i, name in enumerate(INPUTS)}
+    g = INPUTS.as_dict(u)
     dt, gyro, fix, v = g["dt"], g["yaw_rate"], g["fix"], g["speed"]
     sats = g["sats"]
     # ---- KF1: heading and gyro bias
-    x1 = z[0:2]
-    P1 = o.reshape(z[2:6], 2, 2)
-    rate = gyro - x1[1]
-    F1 = o.eye(2) + o.zeros(2, 2)
-    F1[0, 1] = -dt
-    x1 = o.stack([x1[0] + rate * dt, x1[1]])
-    Q1 = o.zeros(2, 2)
-    Q1[0, 0] = (nz.gyro_std * dt) ** 2
-    Q1[1, 1] = nz.q_bias * dt
-    P1 = F1 @ P1 @ F1.T + Q1
+    zs = STATE.unpack(z)
+    x1 = zs.x1
+    P1 = o.reshape(zs.P1, 2, 2)
+    x1, P1 = heading_predict(x1, P1, gyro, dt, nz.gyro_std, nz.q_bias, o)
     have_h = (g["heading_valid"] > 0.5) * (sats >= 4)
     heading = g["heading"]
-    init = z[26]
+    init = zs.init
     first = have_h * (init < 0.5)
     h1 = _col([1.0, 0.0], o)
     x1u, P1u, _, _ = scalar_update(x1, P1, h1, wrap(heading - x1[0], o), nz.heading_std ** 2, o, 2,
@@ -75,18 +75,17 @@ def step(d: FilterDesign, z, u, o=NUMPY):
     P1 = o.if_else(first > 0.5, P1f, P1u)
     psi, r = x1[0], gyro - x1[1]
     # ---- KF2: body velocities and accelerometer biases
-    x2 = z[6:10]
-    P2 = o.reshape(z[10:26], 4, 4)
+    x2 = zs.x2
+    P2 = o.reshape(zs.P2, 4, 4)
     ax, ay = g["ax"], g["ay"]
-    vx, vy, bx, by = x2[0], x2[1], x2[2], x2[3]
-    x2 = o.stack([vx + (ax - bx + r * vy) * dt, vy + (ay - by - r * vx) * dt, bx, by])
     F2 = o.eye(4) + o.zeros(4, 4)
     F2[0, 1], F2[0, 2] = r * dt, -dt
     F2[1, 0], F2[1, 3] = -r * dt, -dt
     Q2 = o.zeros(4, 4)
     Q2[0, 0] = Q2[1, 1] = (nz.accel_std * dt) ** 2 + nz.q_velocity * dt
     Q2[2, 2] = Q2[3, 3] = nz.q_accel_bias * dt
-    P2 = F2 @ P2 @ F2.T + Q2
+    # linear in the state for the yaw rate r of KF1, the accelerometers inputs
+    x2, P2 = predict(x2, P2, F2, Q2, o, 4, w=o.stack([ax * dt, ay * dt, 0.0 * dt, 0.0 * dt]))
     usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed) * (init > 0.5)
     speed_g = o.if_else(usable > 0.5, g["gps_speed"], 0.0 * v)
     course = g["course"]
@@ -98,9 +97,7 @@ def step(d: FilterDesign, z, u, o=NUMPY):
         x2, P2, _, _ = scalar_update(x2, P2, h, meas[i] - x2[i], r_v, o, 4, gate=usable)
     beta = o.arctan2(x2[1], o.fmax(x2[0], 0.1))
     init_n = o.fmax(init, have_h)
-    z_next = o.concat([x1, o.flatten(P1), x2, o.flatten(P2), o.stack([init_n])])
-    nan = float("nan")
-    zero = 0.0 * v
-    y = o.stack([beta, r, psi, zero + nan, zero + nan, zero + nan, x1[1], usable, zero + nan, zero,
-                 zero + nan, zero + nan, x2[0], x2[1], zero + nan])
+    z_next = STATE.pack(o=o, x1=x1, P1=o.flatten(P1), x2=x2, P2=o.flatten(P2), init=init_n)
+    y = outputs(o, v, beta=beta, yaw_rate=r, yaw=psi, gyro_bias=x1[1], gps_used=usable, bias_alarm=0.0 * v,
+                vx=x2[0], vy=x2[1])
     return z_next, y

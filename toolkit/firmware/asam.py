@@ -39,7 +39,6 @@ MEASURED_STATE = ("supervisor.active", "supervisor.blend", "supervisor.steer_cor
                   "supervisor.slip_authority", "supervisor.slip_lag", "supervisor.ay_demand")
 """ECU state entries (besides the outputs) a calibration engineer watches: the supervision's
 activation, authority, steer correction, friction estimate, slip control."""
-_STATE_UNITS = {"steer_correction": "rad", "ay_demand": "m/s^2"}
 
 
 def measurements(d) -> list[dict]:
@@ -48,15 +47,16 @@ def measurements(d) -> list[dict]:
     from evstab.controllers import supervisor as sup_mod
     from evstab.controllers import two_dof as ctl_mod
     from .ecu import OUTPUTS
-    out = [{"name": f"out_{n}", "symbol": f"evstab_out.{n}", "offset": 0, "unit": u, "description": desc}
-           for n, u, desc in OUTPUTS]
+    out = [{"name": f"out_{s.name}", "symbol": f"evstab_out.{s.name}", "offset": 0, "unit": s.unit,
+            "description": s.doc} for s in OUTPUTS.signals]
     lay = d.layout
-    names = {f"law.{k}": lay["controller"] + i for i, k in enumerate(ctl_mod.STATE)}
-    names.update({f"supervisor.{k}": lay["supervisor"] + i for i, k in enumerate(sup_mod.STATE)})
+    parts = {"law": (lay.index("controller"), ctl_mod.STATE), "supervisor": (lay.index("supervisor"), sup_mod.STATE)}
     for key in MEASURED_STATE:
-        short = key.split(".", 1)[1]
-        out.append({"name": f"state_{short}", "symbol": "evstab_st", "index": names[key],
-                    "unit": _STATE_UNITS.get(short, "-"), "description": f"ECU state {key} (entry {names[key]})"})
+        part, short = key.split(".", 1)
+        base, sub = parts[part]
+        index = base + sub.index(short)
+        out.append({"name": f"state_{short}", "symbol": "evstab_st", "index": index,
+                    "unit": sub.signal(short).unit, "description": f"ECU state {key} (entry {index})"})
     return out
 
 

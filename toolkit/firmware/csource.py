@@ -38,10 +38,10 @@ def _ctype(kind: str, p: Precision) -> str:
 
 
 def header(d: EcuDesign, p: Precision, info: dict) -> str:
-    n_in = "\n".join(f"    {_ctype(_kind(name), p):11s} {name};{' ' * max(1, 20 - len(name))}/* [{unit}] {desc} */"
-                     for name, unit, _, desc in INPUTS)
-    n_out = "\n".join(f"    evstab_real {name};{' ' * max(1, 20 - len(name))}/* [{unit}] {desc} */"
-                      for name, unit, desc in OUTPUTS)
+    n_in = "\n".join(f"    {_ctype(s.ctype, p):11s} {s.name};{' ' * max(1, 20 - len(s.name))}/* [{s.unit}] {s.doc} */"
+                     for s in INPUTS.signals)
+    n_out = "\n".join(f"    evstab_real {s.name};{' ' * max(1, 20 - len(s.name))}/* [{s.unit}] {s.doc} */"
+                      for s in OUTPUTS.signals)
     fmin, cmin = d.min_speeds
     return f"""/* evstab_firmware.h: stability-control ECU step (estimator + 2-DOF controller).
  *
@@ -91,7 +91,7 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *o
 
 
 def _kind(name: str) -> str:
-    return next(k for n, _, k, _ in INPUTS if n == name)
+    return INPUTS.signal(name).ctype
 
 
 def source(d: EcuDesign, p: Precision, info: dict) -> str:
@@ -157,8 +157,8 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows)
 }}
 """)
     cal_syms = [names[c.name] for c in cal]
-    out_names = [name for name, _, _ in OUTPUTS]
-    in_names = [name for name, _, _, _ in INPUTS]
+    out_names = list(OUTPUTS)
+    in_names = list(INPUTS)
 
     def read_input(k):
         name = in_names[k]
@@ -209,13 +209,13 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *o
 def harness() -> str:
     """``evstab_replay.c``: reads one line of :data:`INPUTS` per step (CSV, header line skipped) and prints
     the :data:`OUTPUTS` line by line with 17 significant digits; the check against ``evstab replay``."""
-    in_names = [name for name, _, _, _ in INPUTS]
+    in_names = list(INPUTS)
     assign = "\n".join(f"        in.{name} = {'(int)' if _kind(name) in ('int', 'flag') else '(evstab_real)'}v[{i}];"
                        for i, name in enumerate(in_names))
-    outs = ", ".join(f"(double)evstab_out.{name}" for name, _, _ in OUTPUTS)
+    outs = ", ".join(f"(double)evstab_out.{name}" for name in OUTPUTS)
     fmt = ",".join(["%.17g"] * len(OUTPUTS))
     return f"""/* evstab_replay.c: run evstab_step over an input CSV (columns {', '.join(in_names)}),
- * print the outputs ({', '.join(n for n, _, _ in OUTPUTS)}).
+ * print the outputs ({', '.join(OUTPUTS)}).
  * Build: cc -std=c99 -O2 evstab_firmware.c evstab_replay.c -lm -o evstab_replay
  * Use:   evstab_replay INPUTS.csv > OUTPUTS.csv   (inputs from `evstab replay --inputs-out`)
  */
@@ -266,7 +266,7 @@ int main(int argc, char **argv)
     }}
     evstab_init(&evstab_st);
     memset(&in, 0, sizeof in);
-    printf("{','.join(n for n, _, _ in OUTPUTS)}\\n");
+    printf("{','.join(OUTPUTS)}\\n");
     while (fgets(line, sizeof line, f) != NULL) {{
         ++row;
         if (row == 1) {{
@@ -290,5 +290,5 @@ int main(int argc, char **argv)
 
 def write_inputs_csv(path_or_fh, U: np.ndarray) -> None:
     """The harness's input file: a header of :data:`INPUTS` names and one row per step (17 digits)."""
-    header = ",".join(name for name, _, _, _ in INPUTS)
+    header = ",".join(INPUTS)
     np.savetxt(path_or_fh, U, delimiter=",", header=header, comments="", fmt="%.17g")

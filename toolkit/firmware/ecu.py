@@ -34,51 +34,52 @@ from evstab.controllers.two_dof import TwoDofDesign, control_law, reference
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants import G
 from evstab.plants.errors import ModelError
+from evstab.plants.model import torque_difference
+from evstab.plants.signals import Layout, Signal
 
 from ..compiled import with_fields
 from ..estimation import kalman
 from ..estimation.spec import LOOP_METHODS, FilterDesign
 
-INPUTS = (
-    # name, unit, C type, meaning
-    ("dt", "s", "real", "time since the previous step (the control period)"),
-    ("speed", "m/s", "real", "vehicle speed from the non-driven wheels"),
-    ("steer", "rad", "real", "measured front road-wheel angle, + left"),
-    ("yaw_rate", "rad/s", "real", "gyro yaw rate, + counter-clockwise seen from above"),
-    ("ay", "m/s^2", "real", "lateral acceleration, + left"),
-    ("gps_valid", "-", "int", "1 when a new GPS course fix arrived in this period, else 0"),
-    ("gps_course", "rad", "real", "GPS course over ground, same sense and reference as yaw, continuous"),
-    ("gps_speed", "m/s", "real", "GPS ground speed (not used by this design; kept for logging)"),
-    ("gps_hdop", "-", "real", "horizontal dilution of precision of the fix"),
-    ("gps_sats", "-", "int", "satellites used in the fix (fewer than 4: the fix is not used)"),
-    ("steer_cmd_driver", "rad", "real", "driver's road-wheel angle command (hand-wheel angle / steering ratio)"),
-    ("yaw_moment_applied", "N m", "real", "yaw moment the rear motors made over the last period, + turns left"),
-    ("steer_limited", "-", "int", "optional: 1 when the steer actuator was at a limit in the last period (0 without actuator feedback: the ECU's own limit flags feed the anti-windup)"),
-    ("yaw_moment_limited", "-", "int", "optional: 1 when the motors were at a torque limit in the last period (0 without actuator feedback: as above)"),
-    ("mu", "-", "real", "optional: friction from a road sensor, an upper bound on the ECU's own estimate (without a sensor: the design's mu_max, or any larger value)"),
-    ("wheel_speed_rl", "rad/s", "real", "rear-left wheel speed (without a sensor: speed / wheel radius, which switches slip control off)"),
-    ("wheel_speed_rr", "rad/s", "real", "rear-right wheel speed (without a sensor: as above)"),
-)
-OUTPUTS = (
-    ("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
-    ("yaw_rate", "rad/s", "estimated yaw rate"),
-    ("yaw", "rad", "estimated yaw angle, continuous"),
-    ("d1", "rad/s", "disturbance on the sideslip equation (0 without disturbance states)"),
-    ("d2", "rad/s^2", "disturbance on the yaw-rate equation (0 without disturbance states)"),
-    ("gyro_bias", "rad/s", "estimated gyro bias (0 without a bias state)"),
-    ("beta_std", "rad", "standard deviation of the sideslip estimate"),
-    ("gps_used", "-", "1 when this period's fix was used"),
-    ("steer_cmd", "rad", "front road-wheel angle command, + left"),
-    ("yaw_moment_cmd", "N m", "direct yaw moment command, + turns left"),
-    ("torque_rl", "N m", "rear-left wheel torque command (the yaw part, added to the driver's)"),
-    ("torque_rr", "N m", "rear-right wheel torque command (the yaw part, added to the driver's)"),
-    ("beta_ref", "rad", "sideslip reference"),
-    ("yaw_rate_ref", "rad/s", "yaw-rate reference"),
-    ("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
-    ("mu_est", "-", "friction estimate the reference is limited with"),
-)
-INPUT_NAMES = tuple(r[0] for r in INPUTS)
-OUTPUT_NAMES = tuple(r[0] for r in OUTPUTS)
+INPUTS = Layout("ECU inputs", [
+    Signal("dt", "s", "time since the previous step (the control period)"),
+    Signal("speed", "m/s", "vehicle speed from the non-driven wheels"),
+    Signal("steer", "rad", "measured front road-wheel angle, + left"),
+    Signal("yaw_rate", "rad/s", "gyro yaw rate, + counter-clockwise seen from above"),
+    Signal("ay", "m/s^2", "lateral acceleration, + left"),
+    Signal("gps_valid", "-", "1 when a new GPS course fix arrived in this period, else 0", ctype="int"),
+    Signal("gps_course", "rad", "GPS course over ground, same sense and reference as yaw, continuous"),
+    Signal("gps_speed", "m/s", "GPS ground speed (not used by this design; kept for logging)"),
+    Signal("gps_hdop", "-", "horizontal dilution of precision of the fix"),
+    Signal("gps_sats", "-", "satellites used in the fix (fewer than 4: the fix is not used)", ctype="int"),
+    Signal("steer_cmd_driver", "rad", "driver's road-wheel angle command (hand-wheel angle / steering ratio)"),
+    Signal("yaw_moment_applied", "N m", "yaw moment the rear motors made over the last period, + turns left"),
+    Signal("steer_limited", "-", "optional: 1 when the steer actuator was at a limit in the last period (0 without actuator feedback: the ECU's own limit flags feed the anti-windup)", ctype="int"),
+    Signal("yaw_moment_limited", "-", "optional: 1 when the motors were at a torque limit in the last period (0 without actuator feedback: as above)", ctype="int"),
+    Signal("mu", "-", "optional: friction from a road sensor, an upper bound on the ECU's own estimate (without a sensor: the design's mu_max, or any larger value)"),
+    Signal("wheel_speed_rl", "rad/s", "rear-left wheel speed (without a sensor: speed / wheel radius, which switches slip control off)"),
+    Signal("wheel_speed_rr", "rad/s", "rear-right wheel speed (without a sensor: as above)"),
+])
+OUTPUTS = Layout("ECU outputs", [
+    Signal("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
+    Signal("yaw_rate", "rad/s", "estimated yaw rate"),
+    Signal("yaw", "rad", "estimated yaw angle, continuous"),
+    Signal("d1", "rad/s", "disturbance on the sideslip equation (0 without disturbance states)"),
+    Signal("d2", "rad/s^2", "disturbance on the yaw-rate equation (0 without disturbance states)"),
+    Signal("gyro_bias", "rad/s", "estimated gyro bias (0 without a bias state)"),
+    Signal("beta_std", "rad", "standard deviation of the sideslip estimate"),
+    Signal("gps_used", "-", "1 when this period's fix was used"),
+    Signal("steer_cmd", "rad", "front road-wheel angle command, + left"),
+    Signal("yaw_moment_cmd", "N m", "direct yaw moment command, + turns left"),
+    Signal("torque_rl", "N m", "rear-left wheel torque command (the yaw part, added to the driver's)"),
+    Signal("torque_rr", "N m", "rear-right wheel torque command (the yaw part, added to the driver's)"),
+    Signal("beta_ref", "rad", "sideslip reference"),
+    Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+    Signal("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
+    Signal("mu_est", "-", "friction estimate the reference is limited with"),
+])
+INPUT_NAMES = tuple(INPUTS)
+OUTPUT_NAMES = tuple(OUTPUTS)
 FIRMWARE_METHODS = LOOP_METHODS
 
 
@@ -185,22 +186,19 @@ class EcuDesign:
         return self.controller.schedule
 
     @property
-    def layout(self) -> dict:
-        """Offsets of the flat ECU state: the filter's parts (see :func:`kalman.layout`), then the controller's."""
-        lay = dict(kalman.layout(self.filter))
-        lay["controller"] = lay["size"]
-        lay["supervisor"] = lay["controller"] + len(ctl_mod.STATE)
-        lay["size"] = lay["supervisor"] + len(sup_mod.STATE)
-        return lay
+    def layout(self) -> Layout:
+        """The flat ECU state: the filter's parts (see :func:`kalman.layout`), then the control law's
+        (:data:`controllers.two_dof.STATE`) and the supervisor's (:data:`controllers.supervisor.STATE`)."""
+        return state_layout(self.filter)
 
     @property
     def n_state(self) -> int:
-        return self.layout["size"]
+        return self.layout.size
 
     def initial_state(self) -> np.ndarray:
         """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
-        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), np.zeros(len(ctl_mod.STATE)),
-                               sup_mod.initial_state(self.controller)])
+        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), control_layout().pack(
+            controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(sup_mod.initial_state(self.controller)))])
 
     @property
     def min_speeds(self) -> tuple[float, float]:
@@ -277,15 +275,27 @@ def with_schedule_rows(d: EcuDesign, sched) -> EcuDesign:
                        controller=with_fields(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
 
 
+def state_layout(f: FilterDesign) -> Layout:
+    """The ECU state of a design with filter ``f`` (see :attr:`EcuDesign.layout`)."""
+    fl = kalman.layout(f)
+    return Layout("ECU state", [*fl.signals, *control_layout().signals])
+
+
+def filter_part(lay: Layout) -> slice:
+    """The filter's part of the ECU state ``lay`` (:func:`state_layout`)."""
+    return lay.span("x", "buf")
+
+
 def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
     """The filter part of the step: ``(z_est, u) -> (z_est_next, estimates)``, estimates a dict of
     ``beta, yaw_rate, yaw, d1, d2, gyro_bias, beta_std, gps_used`` (0 for states the filter lacks)."""
-    g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
+    g = INPUTS.as_dict(u)
     valid = g["gps_valid"]
-    u_est = o.stack([g["dt"], g["speed"], g["steer"], g["yaw_moment_applied"], g["yaw_rate"], valid,
-                     valid * g["gps_course"], g["gps_hdop"], g["gps_sats"], g["ay"]])
+    u_est = kalman.INPUTS.pack(o=o, dt=g["dt"], speed=g["speed"], steer=g["steer"], yaw_moment=g["yaw_moment_applied"],
+                               yaw_rate=g["yaw_rate"], fix=valid, course=valid * g["gps_course"], hdop=g["gps_hdop"],
+                               sats=g["gps_sats"], ay=g["ay"])
     z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course)
-    est = dict(zip(kalman.OUTPUTS, (y[i] for i in range(len(kalman.OUTPUTS)))))
+    est = kalman.OUTPUTS.as_dict(y)
     zero = 0.0 * g["speed"]
     for name, present in (("d1", "d1" in d.filter.states), ("d2", "d2" in d.filter.states),
                           ("gyro_bias", d.filter.bias)):
@@ -299,38 +309,60 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     :data:`OUTPUTS` (the estimates are passed through to it). ``z_ctl`` is the law's state
     (:data:`controllers.two_dof.STATE`) then the supervisor's (:data:`controllers.supervisor.STATE`):
     friction estimate, activation, authority (see :mod:`controllers.supervisor`)."""
-    g = {name: u[i] for i, name in enumerate(INPUT_NAMES)}
+    g = INPUTS.as_dict(u)
     c = d.controller
-    nl = len(ctl_mod.STATE)
-    z_law, z_sup = z_ctl[0:nl], z_ctl[nl:nl + len(sup_mod.STATE)]
+    parts = control_layout().unpack(z_ctl)
+    z_law, z_sup = parts.controller, parts.supervisor
+    law_st, sup_st = ctl_mod.STATE.unpack(z_law), sup_mod.STATE.unpack(z_sup)
     vm = o.fmax(g["speed"], c.min_speed)
     _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
-    mu_est, use, demand = sup_mod.friction_estimate(c, z_sup[4], z_sup[7], g["speed"], g["ay"], gamma_lin, g["dt"], o)
+    mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"], gamma_lin,
+                                                    g["dt"], o)
     mu_ref = o.fmin(mu_est, g["mu"])
     # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
     # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
     mu_ref = o.fmin(mu_ref, (o.fabs(g["ay"]) * (1.0 + c.ay_headroom_share) + c.ay_headroom) / (c.friction_margin * G))
-    steer_flag = o.fmax(g["steer_limited"], z_sup[5])
-    nz_flag = o.fmax(g["yaw_moment_limited"], z_sup[6])
-    sig = o.stack([g["speed"], g["steer_cmd_driver"], est["beta"], est["yaw_rate"], est["d1"], est["d2"], mu_ref,
-                   steer_flag, nz_flag])
+    steer_flag = o.fmax(g["steer_limited"], sup_st.steer_saturated)
+    nz_flag = o.fmax(g["yaw_moment_limited"], sup_st.yaw_moment_saturated)
+    sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
+                               yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=mu_ref, steer_limited=steer_flag,
+                               yaw_moment_limited=nz_flag)
     nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
-    z_law_n, law = control_law(c, z_law, sig, o, nz_limit)
+    z_law_n, law_y = control_law(c, z_law, sig, o, nz_limit)
+    law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
     beta_rate = g["ay"] / vm - est["yaw_rate"]
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
-        c, z_sup, g["speed"], z_law[3] - est["yaw_rate"], est["beta"], est["beta_std"], use, g["steer_cmd_driver"],
-        law[0], law[1], nz_limit, g["dt"], o, beta_rate=beta_rate)
-    k_slip, slip_lag = sup_mod.slip_authority(c, z_sup[8], z_sup[9], g["speed"], g["wheel_speed_rl"],
-                                          g["wheel_speed_rr"], d.wheel_radius, g["dt"], o)
+        c, z_sup, g["speed"], law_st.yaw_rate_ref - est["yaw_rate"], est["beta"], est["beta_std"], use,
+        g["steer_cmd_driver"], law.steer, law.yaw_moment, nz_limit, g["dt"], o, beta_rate=beta_rate)
+    k_slip, slip_lag = sup_mod.slip_authority(c, sup_st.slip_authority, sup_st.slip_lag, g["speed"],
+                                              g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius, g["dt"], o)
     nz_cmd = nz_cmd * k_slip
-    sup_n[4], sup_n[7], sup_n[8], sup_n[9] = mu_est, demand, k_slip, slip_lag
+    sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag)
     # the law's integrators run only while it has authority
-    z_law_n = o.stack([z_law_n[0] * law_on, z_law_n[1] * law_on] + [z_law_n[i] for i in range(2, nl)])
-    diff = o.fmin(o.fmax(nz_cmd * d.wheel_radius / d.track_rear, -d.torque_max), d.torque_max)
-    out = o.stack([est["beta"], est["yaw_rate"], est["yaw"], est["d1"], est["d2"], est["gyro_bias"], est["beta_std"],
-                   est["gps_used"], steer_cmd, nz_cmd, -diff, diff, law[2], law[3], sup_n[2], mu_est])
-    return o.concat([z_law_n, o.stack(sup_n)]), out
+    law_n = ctl_mod.STATE.as_dict(z_law_n)
+    law_n["xi_beta"], law_n["xi_yaw_rate"] = law_n["xi_beta"] * law_on, law_n["xi_yaw_rate"] * law_on
+    t_rl, t_rr = rear_torques(d, nz_cmd, o)
+    out = OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std",
+                                                   "gps_used")},
+                       steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
+                       beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"], mu_est=mu_est)
+    z_next = control_layout().pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
+    return z_next, out
+
+
+def control_layout() -> Layout:
+    """The controller part of the ECU state: the law's, then the supervisor's."""
+    return Layout("ECU control state", [
+        Signal("controller", "-", "the control law's state (controllers.two_dof.STATE)", ctl_mod.STATE.size),
+        Signal("supervisor", "-", "the supervisor's state (controllers.supervisor.STATE)", sup_mod.STATE.size)])
+
+
+def rear_torques(d: EcuDesign, yaw_moment, o=NUMPY):
+    """``(T_rl, T_rr)`` [N m]: the yaw part of the rear wheel torques for ``yaw_moment``, the torque
+    difference (:func:`plants.model.torque_difference`) limited to ``torque_max``."""
+    diff = o.fmin(o.fmax(torque_difference(yaw_moment, d.wheel_radius, d.track_rear), -d.torque_max), d.torque_max)
+    return -diff, diff
 
 
 def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
@@ -342,9 +374,8 @@ def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
     """
     d = with_schedule_rows(d, sched)
     lay = d.layout
-    ne = lay["controller"]
-    z_est_n, est = ecu_estimate(d, z[0:ne], u, o, with_course)
-    z_ctl_n, out = ecu_control(d, z[ne:lay["size"]], u, est, o)
+    z_est_n, est = ecu_estimate(d, z[filter_part(lay)], u, o, with_course)
+    z_ctl_n, out = ecu_control(d, z[lay.span("controller", "supervisor")], u, est, o)
     return o.concat([z_est_n, z_ctl_n]), out
 
 
@@ -353,7 +384,7 @@ def traced_steps(d: EcuDesign):
     import casadi as ca
     out = []
     for with_course in (False, True):
-        z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", len(INPUTS))
+        z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
         s, cal = ca.SX.sym("sched", 2 * len(ROWS)), ca.SX.sym("cal", len(d.calibration()))
         bound = d.bind([cal[i] for i in range(cal.shape[0])])
         zn, y = ecu_step(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course)

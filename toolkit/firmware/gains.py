@@ -59,16 +59,17 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
                                "used; course noise from HDOP and speed when hdop_noise",
                     latency_compensated_s=f.latency, latency_samples=f.latency_samples),
         "signals": {
-            "inputs": [{"index": i, "name": n, "unit": u, "c_type": "int" if k in ("int", "flag") else "evstab_real",
-                        "description": desc} for i, (n, u, k, desc) in enumerate(INPUTS)],
-            "outputs": [{"index": i, "name": n, "unit": u, "description": desc}
-                        for i, (n, u, desc) in enumerate(OUTPUTS)],
+            "inputs": [{"index": INPUTS.index(s.name), "name": s.name, "unit": s.unit,
+                        "c_type": "int" if s.ctype == "int" else "evstab_real", "description": s.doc}
+                       for s in INPUTS.signals],
+            "outputs": [{"index": OUTPUTS.index(s.name), "name": s.name, "unit": s.unit, "description": s.doc}
+                        for s in OUTPUTS.signals],
         },
         "step": "each period: the filter takes the measurements and the yaw moment applied over the last period; "
                 "the controller takes the new estimates, the driver's steer and the actuators' limit flags of the "
                 "last period; the yaw-moment command is split over the rear motors as +-N_z R_w / t_r, limited to "
                 "torque_max",
-        "state": {"size": d.n_state, "layout": {k: v for k, v in lay.items()},
+        "state": {"size": d.n_state, "layout": lay.offsets(),
                   "initial": [float(v) for v in d.initial_state()]},
         "estimator": {
             "method": f.method, "states": list(f.states), "disturbance": f.disturbance, "bias": f.bias,

@@ -26,7 +26,7 @@ import numpy as np
 from evstab.plants.backend import NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
-from .ecu import INPUT_NAMES, OUTPUT_NAMES, EcuDesign, ecu_step, traced_steps
+from .ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step, traced_steps
 from ..logio import LogFormatError
 
 CHUNK = 2000
@@ -46,8 +46,8 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = N
     get = lambda k: np.asarray(cols[k], float) if k in cols else None  # noqa: E731
     t = get("t")
     n = len(t)
-    U = np.zeros((n, len(INPUT_NAMES)))
-    col = {name: U[:, i] for i, name in enumerate(INPUT_NAMES)}
+    U = INPUTS.zeros(n)
+    col = INPUTS.columns(U)  # views: writing them fills U
     col["dt"][0] = dt0 if n < 2 else t[1] - t[0]
     col["dt"][1:] = np.diff(t)
     course = get("gps_course")
@@ -102,7 +102,7 @@ class EcuProgram:
             switch = ca.Function.conditional("ecu_switch", [nofix], fix)
             nz, nu, ns, nc = (nofix.size1_in(i) for i in range(4))
             z, u, s, c = ca.MX.sym("z", nz), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
-            zn, y = switch(ca.if_else(u[INPUT_NAMES.index("gps_valid")] > 0.5, 1, 0), z, u, s, c)
+            zn, y = switch(ca.if_else(u[INPUTS.index("gps_valid")] > 0.5, 1, 0), z, u, s, c)
             step = ca.Function("ecu_step", [z, u, s, c], [zn, y])
             acc = step.mapaccum("ecu_acc", CHUNK)
             z0, U, S, C = ca.MX.sym("z0", nz), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK), ca.MX.sym("c", nc)
@@ -113,17 +113,17 @@ class EcuProgram:
     def run(self, U: np.ndarray, z0: np.ndarray | None = None) -> np.ndarray:
         """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS)) from ``z0`` (default: the initial state)."""
         d = self.design
-        n, ny = U.shape[0], len(OUTPUT_NAMES)
+        n, ny = U.shape[0], OUTPUTS.size
         z = d.initial_state() if z0 is None else np.array(z0, float)
-        S = d.schedule_inputs(U[:, INPUT_NAMES.index("speed")])
+        S = d.schedule_inputs(U[:, INPUTS.index("speed")])
         if self.backend == "numpy":
             Y = np.empty((n, ny))
-            ifix = INPUT_NAMES.index("gps_valid")
+            ifix = INPUTS.index("gps_valid")
             for k in range(n):
                 z, Y[k] = ecu_step(d, z, U[k], S[k], NUMPY, with_course=bool(U[k, ifix] > 0.5))
             return Y
         return run_chunks(z, [U, S], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
-                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=INPUT_NAMES.index("gps_valid"))
+                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=INPUTS.index("gps_valid"))
 
 
 @lru_cache(maxsize=16)
@@ -138,5 +138,5 @@ def replay(d: EcuDesign, log, mu: float | None = None, backend: str = "auto") ->
     Y = ecu_program(d, backend).run(U)
     cols = log.columns if hasattr(log, "columns") else log
     out = {"t": np.asarray(cols["t"], float)}
-    out.update({name: Y[:, i] for i, name in enumerate(OUTPUT_NAMES)})
+    out.update(OUTPUTS.columns(Y))
     return out
