@@ -17,7 +17,7 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, default_wind
 from evstab.plants.maneuvers import step_steer
-from evstab.studies._common import cli, out_dir, save_figure, write_table
+from evstab.studies._common import cli, out_dir, save_figure, write_markdown, write_table
 from evstab.studies._common import seed_003_design
 from evstab.toolkit.simulator import simulate
 
@@ -40,7 +40,12 @@ def main(out, quick: bool = False) -> list[dict]:
                      "steer_max_deg": float(np.degrees(np.abs(c["steer"]).max())),
                      "yaw_moment_max_Nm": float(np.abs(c["yaw_moment"]).max())})
         runs[ctl] = r
-    write_table(rows, out / "fig7.csv", out / "fig7.md")
+    write_table(rows, out / "fig7.csv")
+    labels = {"none": "none", "yaw-pi": "yaw-rate PI", "two-dof": "2-DOF with `dakf`", "two-dof-true": "2-DOF with true states"}
+    write_markdown(out / "fig7.md", ["controller", "sideslip [deg]", "yaw rate [deg/s]", "peak steer [deg]",
+                                     "peak yaw moment [N m]"],
+                   [[labels[r["controller"]], f"{r['beta_rms_err_deg']:.3f}", f"{r['yaw_rate_rms_err_deg_s']:.3f}",
+                     f"{r['steer_max_deg']:.2f}", f"{r['yaw_moment_max_Nm']:.0f}"] for r in rows])
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

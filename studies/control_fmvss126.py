@@ -14,7 +14,9 @@ from __future__ import annotations
 
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
-from evstab.studies._common import cli, out_dir, seed_003_design, write_table
+import numpy as np
+
+from evstab.studies._common import cli, out_dir, seed_003_design, write_markdown, write_table
 from evstab.toolkit.fmvss126 import find_a, run_series
 
 MUS = (1.0, 0.6)
@@ -23,7 +25,7 @@ MUS = (1.0, 0.6)
 def main(out, quick: bool = False) -> list[dict]:
     out = out_dir(out)
     p = load_vehicle("compact-ev")
-    summary = []
+    summary, table = [], []
     cases = (("none", "none", None), ("2-DOF seed 003", "two-dof", seed_003_design(p)),
              ("2-DOF supervised", "two-dof", TwoDofDesign(p.as_nominal())))
     for mu in MUS:
@@ -34,7 +36,19 @@ def main(out, quick: bool = False) -> list[dict]:
             summary.append({"mu": mu, "controller": label, "A_deg": a_deg, "runs": len(rows),
                             "runs_passed": sum(r["pass"] for r in rows), "pass": verdict["pass"],
                             "failed_criteria": " ".join(verdict["failed_criteria"]) or "-"})
-    write_table(summary, out / "fmvss126_summary.csv", out / "fmvss126_summary.md")
+            big = [r for r in rows if r["amplitude_deg"] >= 5.0 * a_deg - 1e-9]
+            passed = sum(r["pass"] for r in rows)
+            ok = f"{passed} / {len(rows)}"
+            table.append([f"{mu:.1f}", label, f"**{ok}**" if verdict["pass"] else ok,
+                          "**PASS**" if verdict["pass"] else "FAIL: " + " ".join(verdict["failed_criteria"]),
+                          f"{np.nanmax([r['yaw_ratio_1_0'] for r in rows]):.1f} % / "
+                          f"{np.nanmax([r['yaw_ratio_1_75'] for r in rows]):.1f} %",  # the series' ratios are in %
+                          f"{min(r['lateral_displacement_m'] for r in big):.2f} m" if big else "-"])
+    write_table(summary, out / "fmvss126_summary.csv")
+    # the docs' table
+    write_markdown(out / "fmvss126_summary.md", ["mu", "controller", "runs passed", "verdict",
+                                                 "worst yaw ratio at COS+1.0 / +1.75 s",
+                                                 "least displacement at >= 5 A"], table)
     return summary
 
 

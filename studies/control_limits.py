@@ -68,7 +68,9 @@ def main(out, design_dir=None) -> list[dict]:
                 ok, _ = lm.no_worse(r, case)
                 row[name] += "" if ok else " (worse)"
         rows.append(row)
-    write_table(rows, out / "limits_summary.csv", out / "limits_summary.md")
+    # the docs' table has the design folder's column whether or not one was given ("-" without)
+    write_table([{**r, "design folder": r.get("design folder", "-")} for r in rows], out / "limits_summary.csv",
+                out / "limits_summary.md")
     straight = [{"speed_kmh": kmh, "controller": name, **straight_road(p, d, kmh)}
                 for kmh in (60.0, 80.0) for name, d in ctl if d is not None]
     write_table(straight, out / "straight_summary.csv", out / "straight_summary.md")

@@ -66,6 +66,23 @@ def table_header(text: str) -> str | None:
     return None
 
 
+def check_study(study: str, out: Path, root: Path | None = None) -> list[str]:
+    """What is wrong with the output ``out`` of a (quick) run of ``study`` for the docs blocks it
+    makes: a block's file it did not write, or wrote with other columns than the block shows."""
+    root = Path(__file__).resolve().parents[1] if root is None else root
+    problems = []
+    for b in blocks(root):
+        if b.study != study:
+            continue
+        made = Path(out) / Path(b.path).name
+        if not made.is_file():
+            problems.append(f"{study} did not write {made.name} ({b.page.name} shows it)")
+        elif table_header(made.read_text()) != table_header(b.body):
+            problems.append(f"{made.name}: columns {table_header(made.read_text())!r}, {b.page.name} shows "
+                            f"{table_header(b.body)!r}")
+    return problems
+
+
 def publish(root: Path) -> list[Path]:
     """Rewrite the results blocks under ``root``; returns the pages written."""
     found = blocks(root)

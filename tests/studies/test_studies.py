@@ -4,6 +4,7 @@ import csv
 
 
 from evstab.studies import estimation_fig6, estimation_intersample, estimation_robustness
+from evstab.studies.publish import check_study
 
 
 def test_fig6(tmp_path):
@@ -21,6 +22,7 @@ def test_intersample(tmp_path):
 
 def test_robustness_quick(tmp_path):
     rows = estimation_robustness.main(tmp_path, quick=True)
+    assert not check_study("estimation_robustness", tmp_path)
     with open(tmp_path / "robustness.csv") as fh:
         assert len(list(csv.DictReader(fh))) == len(rows) == 2 * 3 * 6
     plus40 = [r for r in rows if r["nominal_stiffness"] in ("+40 %", "-40 %")]
@@ -32,7 +34,7 @@ def test_robustness_quick(tmp_path):
 def test_control_fig7(tmp_path):
     from evstab.studies import control_fig7
     rows = {r["controller"]: r for r in control_fig7.main(tmp_path, quick=True)}
-    assert (tmp_path / "fig7.png").exists()
+    assert (tmp_path / "fig7.png").exists() and not check_study("control_fig7", tmp_path)
     # seed 003's claim (its controller: always acting, full steer range): with the 2-DOF controller both
     # states track the reference model. Against the ECU's lagged reference, measured: yaw rate 0.59 vs
     # 1.21 deg/s (quick), 0.40 vs 1.10 (full run); sideslip with true states 0.09 vs 0.60 deg (quick), with
@@ -44,6 +46,7 @@ def test_control_fig7(tmp_path):
 def test_control_fmvss126_quick(tmp_path):
     from evstab.studies import control_fmvss126
     rows = {(r["mu"], r["controller"]): r for r in control_fmvss126.main(tmp_path, quick=True)}
+    assert not check_study("control_fmvss126", tmp_path)
     assert rows[(1.0, "none")]["pass"] is False  # the uncontrolled compact EV spins from 5 A
     assert rows[(1.0, "2-DOF supervised")]["pass"] is True
     assert rows[(0.6, "2-DOF supervised")]["pass"] is True
