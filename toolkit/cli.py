@@ -167,13 +167,20 @@ def cmd_estimate(args) -> int:
     if lacks:
         raise EvstabError(f"{args.log}: method '{args.method}' needs column(s) {', '.join(lacks)}, which the log "
                           f"lacks (or has no value in)")
-    d = design_filter(args.method, p, latency=args.gps_latency)
+    noise = None
+    if args.noise:
+        from .estimation.noise_fit import load_noise
+        noise = load_noise(args.noise)
+    d = design_filter(args.method, p, noise, latency=args.gps_latency)
+    if args.tune:
+        return _tune_noise(args, d, log)
     est = run_estimator(d, log, monitor=not args.no_monitor)
     _require_finite(args.log, est.t, {"beta": est["beta"], "yaw_rate": est["yaw_rate"]})
     cols = {"t": est.t}
     for name in OUTPUTS:
         v = est[name]
-        if name not in ("bias_alarm", "gyro_resid") and np.any(np.isfinite(v)):  # a method's columns only
+        if name not in ("bias_alarm", "gyro_resid", "gyro_var", "course_var") and np.any(np.isfinite(v)):
+            # a method's columns only
             cols[name] = v
     flagged = {}
     if not args.no_monitor:
@@ -225,12 +232,32 @@ def _require_finite(source, t, signals: dict) -> None:
                               f"the filter diverged (check the log's units and the vehicle parameters)")
 
 
+def _tune_noise(args, d, log) -> int:
+    from .estimation.noise_fit import fit_noise, write_noise
+    if d.method not in ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf"):
+        raise EvstabError(f"--tune fits the noise of the Kalman methods (dakf, amrkf, dakf-paper, kf, kf-bias, mbkf), "
+                          f"not '{d.method}'")
+    fit = fit_noise(d, log)
+    write_noise(args.out, fit, d.noise, f"evstab estimate --tune {args.log} --vehicle {args.vehicle} "
+                                        f"--method {d.method}")
+    lo, hi = fit.nis_interval
+    print(f"{d.method} noise fitted to {args.log}: {fit.gyro_updates} gyro updates, {fit.course_fixes} course fixes, "
+          f"{fit.evaluations} filter runs; -2 log L per innovation {fit.nll_start:.5g} -> {fit.nll:.5g}; mean NIS "
+          f"{fit.nis_start:.3f} -> {fit.nis:.3f} (95 % interval [{lo:.3f}, {hi:.3f}])")
+    for k, a, b in zip(fit.parameters, fit.start, fit.values):
+        note = " (at its bound: the log does not pin it)" if k in fit.at_bound else ""
+        print(f"  {k:18s} {a:11.4g} -> {b:11.4g}{note}")
+    print(f"-> {args.out}")
+    return 0
+
+
 def _estimate_designed(args) -> int:
     from .firmware.ecu import INPUTS, OUTPUTS
     from .logio import write_log_table
 
-    if args.method != "dakf" or args.gps_latency != 0.0:
-        raise EvstabError("--method and --gps-latency come from the design with --design; leave them out")
+    if args.method != "dakf" or args.gps_latency != 0.0 or args.noise or args.tune:
+        raise EvstabError("--method, --gps-latency and the noise (--noise, --tune) come from the design with --design; "
+                          "leave them out")
     d, log, U, Y, backend = _replay(args)
     cols = {"t": log["t"]}
     cols.update({name: OUTPUTS.columns(Y)[name] for name in ESTIMATE_COLUMNS})
@@ -423,7 +450,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.add_argument("--no-monitor", action="store_true",
                     help="feed the log to the filter as it is: no sensor-fault screening, no fault_* columns")
-    sp.add_argument("--out", required=True, help="estimate CSV to write")
+    sp.add_argument("--noise", help="noise file (TOML, from --tune): the filter's noise settings; default the method's")
+    sp.add_argument("--tune", action="store_true",
+                    help="fit the filter's noise intensities to the log (innovation maximum likelihood: gyro and GPS "
+                         "velocity noise, process noise) and write them as a noise file to --out, which "
+                         "'evstab estimate --noise' and 'evstab design --noise' read")
+    sp.add_argument("--out", required=True, help="estimate CSV to write (with --tune: the noise file)")
     sp.set_defaults(func=cmd_estimate)
     sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")
     sp.add_argument("log", help="drive-log CSV (DESIGN.md schema; steer_driver, steer_limited_last and "
@@ -488,6 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     sp.add_argument("--workers", type=int, help="worker processes (default: the CPU count)")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sp.add_argument("--noise", help="noise file (TOML, from 'evstab estimate --tune'): the filter's noise settings; "
+                                    "default the method's")
     sp.set_defaults(func=cmd_design)
     sp = sub.add_parser("cache", help="where the compiled code is cached ($EVSTAB_CACHE, default ~/.cache/evstab), "
                                       "how much, and --clear to empty it")
@@ -523,8 +557,13 @@ def cmd_design(args) -> int:
     if args.scheduler and args.executor != "dask":
         raise EvstabError("--scheduler needs --executor dask")
     command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    noise = None
+    if args.noise:
+        from .estimation.noise_fit import load_noise
+        noise = load_noise(args.noise)
     doc = run_design(args.vehicle, args.out, quick=args.quick, executor=args.executor, scheduler=args.scheduler,
-                     workers=args.workers, command=command, progress=not args.no_progress, plant=args.plant)
+                     workers=args.workers, command=command, progress=not args.no_progress, plant=args.plant,
+                     noise=noise)
     s, d = doc["sweep"], doc["designs"]["tuned"]
     print(f"{doc['vehicle']['name']}: tuned K_beta {d['k_beta']:.4g}, K_gamma {d['k_gamma']:.4g} rad/s; "
           f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "

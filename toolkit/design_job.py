@@ -281,7 +281,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     (the paper design itself if no candidate is).
     """
     from .tuning import REGRESS_FACTOR, REGRESS_OFFSET, tune
-    paper = sw.PAPER
+    paper = cfg.paper
     n_tune, n_keep, max_iter, max_rounds = (2, 2, 12, 2) if quick else (4, 8, 25, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}
     paper_worst = max(r["cost"] for r in rows_paper)
@@ -341,11 +341,11 @@ def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, schedu
     from .tuning import phi_of, point_of
     a_cache: dict = {}
     none = lm.run_limits(cfg, None, a_cache=a_cache)
-    paper_lim = lm.run_limits(cfg, sw.PAPER, a_cache=a_cache)
+    paper_lim = lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
     jp = lm.judge(paper_lim, none)
     paper_worst = max(r["cost"] for r in rows_paper)
     paper_stable = {r["case_id"] for r in rows_paper if r["stable"]}
-    phi0, phi1 = phi_of(sw.PAPER), phi_of(cand)
+    phi0, phi1 = phi_of(cfg.paper), phi_of(cand)
     tried = []
 
     def check(s):
@@ -389,7 +389,7 @@ def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, schedu
                 hi = mid
     if found is not None:
         return (*found, tried)
-    point = dataclasses.replace(sw.PAPER, name="tuned")
+    point = dataclasses.replace(cfg.paper, name="tuned")
     return (point, [dict(r, design="tuned") for r in rows_paper],
             none + paper_lim + [dict(r, design="tuned") for r in paper_lim], tried)
 
@@ -414,7 +414,7 @@ def _limit_summary(limit_rows: list[dict]) -> dict:
 
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
-               plant: str = "two-track") -> dict:
+               plant: str = "two-track", noise: NoiseSettings | None = None) -> dict:
     """``evstab design``: the whole job, written into ``out`` (see the module notes).
 
     Parameters
@@ -441,6 +441,9 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     plant : str
         The plant the sweep, the tuning and the limit manoeuvres run on (``two-track``,
         ``bicycle``, ``bicycle-roll``, ``commonroad-mb:N``).
+    noise : NoiseSettings, optional
+        The filter's noise settings (``evstab design --noise FILE``, a file ``evstab estimate
+        --tune`` wrote); the paper design starts from its process-noise intensities.
 
     Returns
     -------
@@ -461,9 +464,9 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     if out.exists() and not out.is_dir():
         raise DesignError(f"{out}: exists and is not a folder; --out names the design folder to write")
     params = load_vehicle(vehicle)
-    cfg = sw.SweepConfig(params, plant=plant)
+    cfg = sw.SweepConfig(params, plant=plant, noise=noise)
     cases = sw.sweep_cases(quick=quick, plant=plant)
-    paper = sw.PAPER
+    paper = cfg.paper
     log(f"evstab design: {params.name} on {plant}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")
     rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
                               progress=progress)

@@ -141,16 +141,28 @@ class SweepConfig:
     ay_lane_change: float = 4.0
     """Peak lateral acceleration [m/s^2] the lane change asks for (linear, nominal car)."""
     ay_step: float = 3.0
+    noise: NoiseSettings | None = None
+    """The filter's noise settings (a noise file's, :func:`toolkit.estimation.noise_fit.load_noise`);
+    None: the method's defaults. The paper point starts from their process-noise intensities."""
+
+    @property
+    def paper(self) -> "DesignPoint":
+        """Seed 003's gains with this configuration's process noise: the design the tuning starts from
+        and is judged against (:data:`PAPER` without a noise file)."""
+        if self.noise is None:
+            return PAPER
+        n = self.noise
+        return DesignPoint("paper", q_beta=n.q_beta, q_yaw_rate=n.q_yaw_rate, q_d1=n.q_d1, q_d2=n.q_d2)
 
     def base_design(self) -> TwoDofDesign:
         return TwoDofDesign(self.nominal.as_nominal(), dt=self.dt)
 
     def filter_design(self, point: DesignPoint) -> FilterDesign:
-        base = design_filter(self.estimator, self.nominal, dt=self.dt, latency=self.sensors.gps_latency)
+        base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency)
         return dataclasses.replace(base, noise=point.noise(base.noise))
 
     def spec(self):
-        return loop_spec(self.nominal, plant=self.plant, estimator=self.filter_design(PAPER), sensors=self.sensors,
+        return loop_spec(self.nominal, plant=self.plant, estimator=self.filter_design(self.paper), sensors=self.sensors,
                          dt=self.dt, design=self.base_design())
 
 

@@ -213,7 +213,7 @@ def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[
     return [decay_rate(cfg, c, p) for c in cases]
 
 
-def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, *, max_iter: int = 30,
+def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, *, max_iter: int = 30,
          stability_cases: list[Case] | None = None, caps: list[float] | None = None,
          verbose: bool = False, workers: int | None = None, progress: bool = False) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
@@ -227,7 +227,10 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint = sweep.PAPER, 
     paper cost plus ``REGRESS_OFFSET``, so that pushing the worst (spinning) cases down
     cannot buy a loss of stability elsewhere: a worst-case objective alone is blind to
     every case below the worst.
+
+    ``start`` defaults to :attr:`SweepConfig.paper`.
     """
+    start = cfg.paper if start is None else start
     rc = RolloutCost(cfg)
     data = []
     for c in cases:

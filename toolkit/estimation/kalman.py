@@ -75,6 +75,8 @@ OUTPUTS = Layout("filter outputs", [
     Signal("bias_alarm", "-", "1 when the gyro-bias CUSUM alarmed"),
     Signal("course_resid", "-", "course innovation over its predicted standard deviation"),
     Signal("gyro_resid", "rad/s", "gyro innovation before its update"),
+    Signal("gyro_var", "rad^2/s^2", "its predicted variance (h P h^T + r)"),
+    Signal("course_var", "rad^2", "the course innovation's predicted variance (NaN without a usable fix)"),
     Signal("vx", "m/s", "body longitudinal velocity"),
     Signal("vy", "m/s", "body lateral velocity"),
     Signal("roll", "rad", "roll angle"),
@@ -185,7 +187,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 2. gyro, every sample
     hg = _col(gyro_row(d), o)
     gyro_resid = gyro - _dot(hg, x, o)
-    x, P, _, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok)
+    x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok)
 
     # 3. standstill: the yaw rate is zero
     if d.standstill_update:
@@ -249,7 +251,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
 
     else:  # no fix on this sample: nothing of the course update happens
         acc, first, usable = False, 0.0 * v, 0.0 * v
-        accept, nis, K = 0.0 * v, 0.0 * v, gain
+        accept, nis, K, S = 0.0 * v, 0.0 * v, gain, 0.0 * v
         resid = 0.0 * v
         if watches_bias(d):
             cusum, alarm = zs.cusum, 0.0 * v
@@ -275,7 +277,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     y = outputs(o, v, beta=x[ib], yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
                 gps_used=o.fmax(accept, first), nis=o.if_else(usable > 0.5, nis, nan),
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
-                gyro_resid=gyro_resid)
+                gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))
     return z_next, y
 
 

@@ -16,8 +16,9 @@ import casadi as ca
 import numpy as np
 
 from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.errors import ModelError
 
-from ..compiled import cache_key, load_chunk_library, run_chunks
+from ..compiled import cache_key, load_chunk_library, run_chunks, with_fields
 from . import dual_antenna, kalman, kkf, lob, two_stage
 from .spec import FilterDesign
 
@@ -48,8 +49,10 @@ def initial_state(d: FilterDesign, yaw_rate0: float = 0.0) -> np.ndarray:
     return mod.initial_state(d) if mod is not None else kalman.initial_state(d, 0.0, yaw_rate0)
 
 
-def _step_function(d: FilterDesign):
-    """casadi ``est_step(z, u) -> (z_next, y)``.
+def _step_function(d: FilterDesign, tuned: tuple[str, ...] = ()):
+    """casadi ``est_step(z, u) -> (z_next, y)``, with ``tuned`` noise settings (names of
+    :class:`NoiseSettings` fields) ``est_step(z, u, theta) -> (z_next, y)``: those intensities a
+    run-time input (one compiled filter for every value, as the noise fit needs).
 
     For the Kalman designs the step switches (casadi ``conditional``, a real branch
     in the generated C) between the full step and the step without the course
@@ -57,7 +60,13 @@ def _step_function(d: FilterDesign):
     """
     nin = kalman.INPUTS.size
     mod = _plain(d)
+    th = ca.SX.sym("theta", len(tuned))
+    if tuned:
+        d = with_fields(d, noise=with_fields(d.noise, **{k: th[i] for i, k in enumerate(tuned)}))
+    extra = [th] if tuned else []
     if mod is not None:
+        if tuned:
+            raise ModelError(f"the noise of '{d.method}' is not a run-time input; fit the Kalman methods' noise")
         z, u = ca.SX.sym("z", mod.STATE_SIZE), ca.SX.sym("u", nin)
         zn, y = mod.step(d, z, u, CASADI)
         return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
@@ -66,24 +75,30 @@ def _step_function(d: FilterDesign):
     for with_course in (False, True):
         z, u = ca.SX.sym("z", size), ca.SX.sym("u", nin)
         zn, y = kalman.step(d, z, u, CASADI, with_course=with_course)
-        variants.append(ca.Function("est_step_" + ("fix" if with_course else "nofix"), [z, u], [zn, y]))
+        variants.append(ca.Function("est_step_" + ("fix" if with_course else "nofix"), [z, u] + extra, [zn, y]))
     switch = ca.Function.conditional("est_switch", [variants[0]], variants[1])
     z, u = ca.MX.sym("z", size), ca.MX.sym("u", nin)
+    thm = [ca.MX.sym("theta", len(tuned))] if tuned else []
     # index 0 -> no fix, anything else -> the default (full) step
-    zn, y = switch(ca.if_else(u[kalman.INPUTS.index("fix")] > 0.5, 1, 0), z, u)
-    return ca.Function("est_step", [z, u], [zn, y], ["z", "u"], ["z_next", "y"])
+    zn, y = switch(ca.if_else(u[kalman.INPUTS.index("fix")] > 0.5, 1, 0), z, u, *thm)
+    return ca.Function("est_step", [z, u] + thm, [zn, y], ["z", "u"] + (["theta"] if tuned else []), ["z_next", "y"])
 
 
 class CompiledFilter:
     """A filter design ready to run fast; ``backend`` is ``c``, ``vm`` or ``numpy``."""
 
-    def __init__(self, d: FilterDesign, backend: str = "auto"):
+    def __init__(self, d: FilterDesign, backend: str = "auto", tuned: tuple[str, ...] = ()):
         self.design = d
+        self.tuned = tuple(tuned)
+        """Noise settings that are a run-time input of :meth:`run` (``theta``), in this order."""
+        if self.tuned and backend == "numpy":
+            raise ModelError("a filter with run-time noise settings runs compiled (backend c or vm)")
         self.backend = "numpy" if backend == "numpy" else "vm"
         self._step_fn = self._chunk_fn = None
         if backend in ("auto", "c"):
             # a compiled filter loads without rebuilding the casadi graph
-            self._c = load_chunk_library(cache_key("est", d, CHUNK), lambda: self.chunk_fn, "est_chunk", required=backend == "c")
+            self._c = load_chunk_library(cache_key("est", d, CHUNK, self.tuned), lambda: self.chunk_fn, "est_chunk",
+                                         required=backend == "c")
             if self._c is not None:
                 self.backend = "c"
 
@@ -91,7 +106,7 @@ class CompiledFilter:
     def step_fn(self) -> ca.Function:
         """The casadi step ``(z, u) -> (z_next, y)`` (built on first use)."""
         if self._step_fn is None:
-            self._step_fn = _step_function(self.design)
+            self._step_fn = _step_function(self.design, self.tuned)
         return self._step_fn
 
     @property
@@ -100,13 +115,18 @@ class CompiledFilter:
         if self._chunk_fn is None:
             acc = self.step_fn.mapaccum("est_acc", CHUNK)
             z0, U = ca.MX.sym("z0", self.step_fn.size1_in(0)), ca.MX.sym("U", kalman.INPUTS.size, CHUNK)
-            Z, Y = acc(z0, U)
-            self._chunk_fn = ca.Function("est_chunk", [z0, U], [Z[:, -1], Y], ["z0", "U"], ["z_end", "Y"])
+            th = [ca.MX.sym("theta", len(self.tuned))] if self.tuned else []
+            Z, Y = acc(z0, U, *[ca.repmat(t, 1, CHUNK) for t in th])
+            self._chunk_fn = ca.Function("est_chunk", [z0, U] + th, [Z[:, -1], Y], ["z0", "U"] + (["theta"] if th else []),
+                                         ["z_end", "Y"])
         return self._chunk_fn
 
-    def run(self, U: np.ndarray, z0: np.ndarray, final_state: bool = False):
+    def run(self, U: np.ndarray, z0: np.ndarray, final_state: bool = False, theta=None):
         """``U`` is (N, len(INPUTS)); returns Y (N, len(OUTPUTS)), with ``final_state`` also the
-        filter state after the last sample (N a multiple of :data:`CHUNK` for the compiled backends)."""
+        filter state after the last sample (N a multiple of :data:`CHUNK` for the compiled backends);
+        ``theta``: the values of :attr:`tuned`."""
+        if len(self.tuned) != (0 if theta is None else len(theta)):
+            raise ModelError(f"theta must give {len(self.tuned)} values ({', '.join(self.tuned)})")
         n = U.shape[0]
         ny = kalman.OUTPUTS.size
         if self.backend == "numpy":
@@ -120,13 +140,15 @@ class CompiledFilter:
                 else:
                     z, Y[k] = kalman.step(d, z, U[k], NUMPY, with_course=bool(U[k, kalman.INPUTS.index("fix")] > 0.5))
             return (Y, z) if final_state else Y
+        consts = [np.ascontiguousarray(theta, float)] if self.tuned else []
         return run_chunks(z0, [U], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
-                          casadi_fn=self.chunk_fn, fix_column=5, final_state=final_state)
+                          casadi_fn=self.chunk_fn, constants=consts, fix_column=kalman.INPUTS.index("fix"),
+                          final_state=final_state)
 
 
 @lru_cache(maxsize=64)
-def compiled_filter(d: FilterDesign, backend: str = "auto") -> CompiledFilter:
-    return CompiledFilter(d, backend)
+def compiled_filter(d: FilterDesign, backend: str = "auto", tuned: tuple[str, ...] = ()) -> CompiledFilter:
+    return CompiledFilter(d, backend, tuned)
 
 
 def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=None, gps_hdop=None, gps_sats=None,
@@ -163,6 +185,16 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     return U
 
 
+def log_inputs(cols: dict, dt0: float = 1e-3, gyro_ok=None) -> np.ndarray:
+    """The (N, len(INPUTS)) filter inputs of a drive log's columns (see :func:`inputs_from_columns`)."""
+    get = cols.get
+    return inputs_from_columns(cols["t"], cols["speed"], cols["steer"], cols["yaw_rate"], cols["gps_course"],
+                               yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
+                               ay=get("ay"), gyro_ok=gyro_ok, ax=get("ax"), gps_speed=get("gps_speed"),
+                               gps_heading=get("gps_heading"), roll_rate=get("roll_rate"), gps_roll=get("gps_roll"),
+                               dt0=dt0)
+
+
 def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) -> Estimate:
     """Run design ``d`` over a drive log (:class:`toolkit.logio.DriveLog` or a mapping of columns).
 
@@ -179,11 +211,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
         screened = screen(cols, monitor if isinstance(monitor, MonitorSettings) else None)
         cols = screened.columns
     get = cols.get
-    U = inputs_from_columns(cols["t"], cols["speed"], cols["steer"], cols["yaw_rate"], cols["gps_course"],
-                            yaw_moment=get("yaw_moment"), gps_hdop=get("gps_hdop"), gps_sats=get("gps_sats"),
-                            ay=get("ay"), gyro_ok=None if screened is None else screened.gyro_ok,
-                            ax=get("ax"), gps_speed=get("gps_speed"), gps_heading=get("gps_heading"),
-                            roll_rate=get("roll_rate"), gps_roll=get("gps_roll"), dt0=d.dt_nominal)
+    U = log_inputs(cols, d.dt_nominal, None if screened is None else screened.gyro_ok)
     cf = compiled_filter(d, backend)
     Y = cf.run(U, initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0])))
     out = kalman.OUTPUTS.columns(Y)
