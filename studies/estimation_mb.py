@@ -9,7 +9,10 @@ speed falls):
 * FMVSS 126 sine with dwell at 80 km/h, 3.5 A;
 * ramp 0 -> 4 deg road wheel over 10 s at 60 km/h;
 * the lane change with a 2 s GPS outage and two bad fixes (3 satellites, course off by 0.1 rad);
-* seed 000's double lane change at 60 km/h on mu 0.5 (path-following driver).
+* seed 000's double lane change at 60 km/h on mu 0.5 (path-following driver);
+* a slide on mu 0.5: sine with dwell at 80 km/h with a hand-wheel amplitude that makes the car
+  slide and recover (:data:`SLIDE_HAND_WHEEL_DEG`: the Vanagon to 14 deg of sideslip, the
+  understeering Escort to 8 deg), with 8 s after the steer.
 
 Each estimator is designed from the bundled nominal file (``exact``: the file as derived from the
 car) and from the same file with both cornering stiffnesses +40 % and the inertias +10 % (``off``).
@@ -37,9 +40,11 @@ from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
 
 CARS = (1, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer")
+METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf-kinematic")
 START = 2.0
 DEG = np.pi / 180
+SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 40.0}
+"""Hand-wheel amplitude [deg] of each car's slide on mu 0.5 (sine with dwell at 80 km/h)."""
 
 
 def wrong(p):
@@ -51,7 +56,7 @@ def wrong(p):
     return dataclasses.replace(p, name=p.name + "-off", **kw)
 
 
-def drives(p):
+def drives(p, set_id: int | None = None):
     sens = SensorConfig(gyro_bias=0.003, gyro_scale_error=0.01)
     a = steer_for_lateral_acceleration(p, 80 / 3.6, 0.3 * G)
     lane = sine_lane_change(25 / 3.6, 9 * DEG, start=START, period=4.0, duration=START + 8.0)
@@ -63,7 +68,9 @@ def drives(p):
         ("lane change, 2 s outage, 2 bad fixes", lane, 1.0,
          dataclasses.replace(sens, gps_outages=((START + 1.0, START + 3.0),)), (START + 4.0, START + 5.4)),
         ("double lane change 60 km/h mu 0.5", dlc_000(60 / 3.6, lead_in=START * 60 / 3.6), 0.5, sens, None),
-    ]
+    ] + ([] if set_id is None else [
+        ("slide 80 km/h mu 0.5", sine_with_dwell(80 / 3.6, SLIDE_HAND_WHEEL_DEG[set_id] * DEG / p.steering_ratio,
+                                                 start=START, after=8.0), 0.5, sens, None)])
 
 
 def main(out, quick: bool = False) -> list[dict]:
@@ -71,7 +78,7 @@ def main(out, quick: bool = False) -> list[dict]:
     rows = []
     for n in CARS[:1] if quick else CARS:
         p = load_vehicle(f"commonroad-{n}")
-        for name, man, mu, sens, bad in drives(p):
+        for name, man, mu, sens, bad in drives(p, n):
             r = simulate(p, f"commonroad-mb:{n}", man, disturbances=Disturbances(friction=Friction(mu=mu)),
                          sensors=sens, seed=n)
             log = r.log_columns()

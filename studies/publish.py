@@ -83,9 +83,10 @@ def check_study(study: str, out: Path, root: Path | None = None) -> list[str]:
     return problems
 
 
-def publish(root: Path) -> list[Path]:
-    """Rewrite the results blocks under ``root``; returns the pages written."""
-    found = blocks(root)
+def publish(root: Path, only: tuple[str, ...] = ()) -> list[Path]:
+    """Rewrite the results blocks under ``root`` (with ``only``, the blocks of those files); returns the
+    pages written."""
+    found = [b for b in blocks(root) if not only or b.path in only]
     missing = [b for b in found if not (root / b.path).is_file()]
     if missing:
         raise DataError("no table for these results blocks (run their commands first):\n" + "\n".join(
@@ -96,6 +97,8 @@ def publish(root: Path) -> list[Path]:
 
         def fill(m):
             path, command = m["path"].strip(), m["command"].strip()
+            if only and path not in only:
+                return m.group(0)
             table = (root / path).read_text()
             return f"<!-- results: {path} | {command} -->\n{body(command, table)}<!-- /results -->"
 
@@ -110,10 +113,12 @@ def main(argv=None) -> int:
     import argparse
     ap = argparse.ArgumentParser(prog="python -m evstab.studies.publish", description=__doc__.split("\n\n")[0])
     ap.add_argument("--root", default=".", help="the repository root (default: the current folder)")
+    ap.add_argument("--only", nargs="+", default=(), metavar="FILE",
+                    help="fill only the blocks of these tables (paths as the blocks name them)")
     args = ap.parse_args(argv)
     root = Path(args.root)
     try:
-        written = publish(root)
+        written = publish(root, tuple(args.only))
     except DataError as e:
         print(f"publish: {e}", file=sys.stderr)
         return 2

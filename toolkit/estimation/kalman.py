@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from evstab.plants import G
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.signals import Layout, Signal
 from .core import column as _col, diag as _diag, dot as _dot, predict_delta, scalar_update
@@ -60,6 +61,7 @@ INPUTS = Layout("filter inputs", [
     Signal("roll_rate", "rad/s", "roll gyro", optional=True),
     Signal("gps_roll", "rad", "total roll from a third antenna", optional=True),
     Signal("gps_roll_valid", "-", "1 where gps_roll is measured", optional=True),
+    Signal("ay_ok", "-", "0 where the log has no lateral acceleration (absent: 1)", optional=True),
 ])
 """The Kalman step reads the first 11 (``gyro_ok`` optional); the rest feed other methods (``two-stage``)."""
 OUTPUTS = Layout("filter outputs", [
@@ -90,6 +92,10 @@ def outputs(o, like, **values):
     return OUTPUTS.pack(values, o, like=like, fill=float("nan"))
 
 
+INIT_MAX = 60.0
+"""Cap of the filter state's ``init`` entry (1 + seconds since the first fix)."""
+
+
 def watches_bias(d: FilterDesign) -> bool:
     """Whether the design runs the gyro-bias-step CUSUM (a bias state and gated fixes)."""
     return bool(d.bias and d.gating)
@@ -103,7 +109,7 @@ def layout(d: FilterDesign) -> Layout:
         Signal("P", "-", "its covariance, column-major", n * n),
         Signal("rejects", "-", "gated fixes in a row"),
         Signal("eps", "rad", "the last course innovation (inter-sample residual prediction)"),
-        Signal("init", "-", "1 once the heading is initialised"),
+        Signal("init", "s", "0 until the heading is initialised by a fix, then 1 + the seconds since (at most INIT_MAX)"),
         Signal("gain", "-", "the gain of the last accepted fix", n),
         Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if watches_bias(d) else 0),
         Signal("buf", "rad", "the predicted course of the last samples (latency)", d.latency_samples),
@@ -170,16 +176,22 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     dyn = v >= nz.min_speed
     v_m = o.fmax(v, nz.min_speed)
     A, B = continuous_model(d, v_m, o, dynamic=dyn)
-    E, Gam = discretize_delta(A, dt, o, n)
     uin = o.stack([steer, nzm])
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
+    kin = None
+    if d.kinematic:
+        # not while the estimate settles after the first fix (a departure then is not the tyres)
+        A, B, q, kin, w_kin = _kinematic_blend(d, A, B, q, x, uin, g, v_m, dyn * (init > 1.0 + nz.kinematic_settle),
+                                               o)
+    E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
         mask = np.zeros(n)
         for s in ("d1", "d2"):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
-    x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=Gam @ (B @ uin))
+    drive = B @ uin if kin is None else B @ uin + kin
+    x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=Gam @ drive)
     if d.steer_noise:  # seed 001: process noise enters through the steer input, Q_d ~ b q b^T dt
         b_st = B[:, 0]
         P = P + (b_st @ b_st.T if o is CASADI else np.outer(b_st, b_st)) * (nz.q_steer * dt)
@@ -271,6 +283,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     extra = {"cusum": cusum} if watches_bias(d) else {}
     if nb > 0:
         extra["buf"] = buf_next
+    # init: 0 until the first usable fix, then 1 + the seconds since (capped)
+    init = o.if_else(init > 0.5, o.fmin(init + dt, INIT_MAX), init)
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
     nan = float("nan")
     est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
@@ -279,6 +293,50 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
                 gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))
     return z_next, y
+
+
+def roll_compensation(p) -> float:
+    """The factor that turns the lateral accelerometer's reading into the car's lateral acceleration
+    in the road plane in steady cornering: the body rolls ``phi = m_s h a_y / (K_phi - m_s g h)``
+    and the accelerometer reads ``a_y + g phi``, so ``a_y = reading / (1 + g m_s h / (K_phi - m_s g h))``
+    (1 without the roll parameters)."""
+    if None in (p.sprung_mass, p.roll_arm, p.roll_stiffness):
+        return 1.0
+    msh = p.sprung_mass * p.roll_arm
+    return 1.0 / (1.0 + G * msh / (p.roll_stiffness - msh * G))
+
+
+def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, o):
+    """The sideslip row where the tyres have left the linear model: ``beta' = a_y / v - r`` (kinematics:
+    no tyre model), blended in with the weight ``w`` from the measured (roll-compensated) lateral
+    acceleration's departure from the linear model's at the current estimate,
+    ``a_model = v (beta'_model + r)``: ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``.
+    The row becomes ``(1 - w) row_model + w (a_y / v - r)``, its process noise
+    ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
+    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, w)``."""
+    nz, n = d.noise, d.n
+    ib, ir = d.index("beta"), d.index("yaw_rate")
+    ay = g.ay * roll_compensation(d.params)
+    a_model = v_m * (_dot(_col([A[ib, j] for j in range(n)], o), x, o) + B[ib, 0] * uin[0] + B[ib, 1] * uin[1] + x[ir])
+    dev = o.fabs(ay - a_model)
+    w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
+    if g.ay_ok is not None:
+        w = w * g.ay_ok
+    keep = 1.0 - w
+    if o is not CASADI:
+        A, B = A.copy(), B.copy()
+    # both lateral rows leave the tyre model: beta' from the kinematics, r' a random walk that the gyro
+    # pins (left on the model, the gyro's innovations would reach the sideslip through a21)
+    for i in (ib, ir):
+        for j in range(n):
+            A[i, j] = A[i, j] * keep
+        B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
+    A[ib, ir] = A[ib, ir] - w
+    e_b, e_r = np.eye(n)[ib], np.eye(n)[ir]
+    q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
+        + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
+    kin = _col(e_b, o) * (w * ay / v_m)
+    return A, B, q, kin, w
 
 
 def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):

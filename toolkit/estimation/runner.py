@@ -176,6 +176,7 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     put("hdop", gps_hdop, 1.0)
     put("sats", gps_sats, 99.0)
     put("ay", ay)
+    col["ay_ok"][:] = 0.0 if ay is None else np.isfinite(np.asarray(ay, float))
     put("gyro_ok", gyro_ok, 1.0)
     put("ax", ax)
     put("gps_speed", gps_speed)

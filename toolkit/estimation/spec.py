@@ -46,6 +46,11 @@ Methods
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
     sideslip = course - heading at each fix taken while turning.
+``dakf-kinematic``
+    ``dakf`` with the kinematic sideslip path at the limit (:func:`toolkit.estimation.kalman.step`):
+    where the measured lateral acceleration leaves the linear model's, ``beta' = a_y / v - r`` takes
+    over. Not the default: with a GPS latency the filter does not compensate it also takes over in
+    linear driving (a delayed fix moves the sideslip, which moves the model's lateral acceleration).
 """
 
 from __future__ import annotations
@@ -62,10 +67,10 @@ from evstab.plants.errors import ModelError
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 """Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of
 :mod:`toolkit.estimation.kalman`."""
-METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer")
+METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer", "dakf-kinematic")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
                   "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading"),
-                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}
+                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed"), "dakf-kinematic": ("ay",)}
 """Drive-log columns a method needs beyond the schema's required ones (``dual-antenna`` uses a third
 antenna's ``gps_roll`` when the log has it, and runs on the heading alone, the common installation,
 when it does not)."""
@@ -131,6 +136,19 @@ class NoiseSettings:
     push the whole rotation into the bias estimate."""
     min_speed: float = 2.0
     """Below this speed [m/s] the lateral model is held (beta, r, d frozen; psi from the gyro)."""
+    kinematic_ay_on: float = 0.5
+    """[m/s^2] Departure of the measured lateral acceleration (roll-compensated) from the linear model's
+    at which the kinematic sideslip rate starts to take over (filters with ``kinematic``)."""
+    kinematic_ay_full: float = 1.0
+    """[m/s^2] ... and at which it has taken over entirely."""
+    kinematic_settle: float = 2.0
+    """[s] The kinematic path waits this long after the first fix (the estimate settling)."""
+    q_beta_kinematic: float = 0.02
+    """[rad^2/s] white noise on the kinematic sideslip rate (the accelerometer's errors: bank, roll
+    left after the static compensation, noise, divided by the speed)."""
+    q_yaw_rate_kinematic: float = 1.0
+    """[rad^2/s^3] white noise on the yaw acceleration where the kinematic path has taken over (the yaw
+    rate a random walk the gyro pins)."""
     gps_min_speed: float = 1.0
     """Course fixes below this ground speed [m/s] are not used."""
     gate: float = CHI2_1DOF_999
@@ -180,6 +198,9 @@ class FilterDesign:
     schedule: object = None
     """A :class:`controllers.schedule.SpeedSchedule`: the lateral model from tables (firmware), or None (exact)."""
     steer_noise: bool = False
+    kinematic: bool = False
+    """Blend the kinematic sideslip rate ``a_y / v - r`` into the sideslip row where the measured lateral
+    acceleration departs from the linear model's (the tyres saturated; :func:`toolkit.estimation.kalman.step`)."""
     """Process noise through the steer input (``NoiseSettings.q_steer``; ``mbkf``)."""
 
     @property
@@ -214,9 +235,10 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
                             False, latency, antenna_x, dt)
-    if method in ("dakf", "amrkf", "double-layer"):
+    if method in ("dakf", "amrkf", "double-layer", "dakf-kinematic"):
         return FilterDesign(method, lat + ("d1", "d2", "gyro_bias"), p, noise, "gauss-markov", True, True, True,
-                            True, method != "dakf", latency, antenna_x, dt)
+                            True, method in ("amrkf", "double-layer"), latency, antenna_x, dt,
+                            kinematic=method == "dakf-kinematic")
     if method == "kf":
         return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
     if method == "mbkf":

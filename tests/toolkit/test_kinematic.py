@@ -1,0 +1,64 @@
+"""The kinematic sideslip path of the default filter: off in linear driving, in charge in a slide."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import sine_lane_change, sine_with_dwell
+from evstab.plants.sensors import SensorConfig
+from evstab.studies.estimation_mb import SLIDE_HAND_WHEEL_DEG, wrong
+from evstab.toolkit.estimation import design_filter, run_estimator
+from evstab.toolkit.estimation.kalman import roll_compensation
+from evstab.toolkit.simulator import simulate
+
+DEG = np.pi / 180
+SENS = SensorConfig(gyro_bias=0.003, gyro_scale_error=0.01)
+
+
+def test_roll_compensation_is_the_static_roll_of_the_roll_model():
+    # a_meas = a_y + g phi with phi = m_s h a_y / (K - m_s g h) (seed 004 eq. 3 in steady state)
+    p = load_vehicle("commonroad-3")
+    msh = p.sprung_mass * p.roll_arm
+    phi_per_ay = msh / (p.roll_stiffness - msh * 9.81)
+    assert 1.0 / roll_compensation(p) == pytest.approx(1.0 + 9.81 * phi_per_ay, rel=1e-3)  # g = 9.80665 vs 9.81
+    bare = dataclasses.replace(load_vehicle("micro-ev"), sprung_mass=None, roll_arm=None, roll_stiffness=None,
+                               roll_inertia=None, roll_damping=None)
+    assert roll_compensation(bare) == 1.0
+
+
+def test_the_kinematic_path_stays_out_of_linear_driving():
+    # a gentle lane change (1.5 m/s^2) with the exact model: the measured lateral acceleration never
+    # leaves the model's by the threshold, so the blend weight is 0 throughout and the filter is the
+    # linear one (the same arithmetic with the blend's factors exactly 1 and 0: equal to the last bit
+    # but for the compiler's freedom with x * 1.0, hence the 1e-15 rad)
+    p = load_vehicle("compact-ev")
+    log = simulate(p, "two-track", sine_lane_change(60 / 3.6, np.radians(1.0), start=2.0, duration=12.0),
+                   sensors=SENS, seed=2).log_columns()
+    d = design_filter("dakf-kinematic", p)
+    assert d.kinematic and not design_filter("dakf", p).kinematic
+    a = run_estimator(d, log)["beta"]
+    b = run_estimator(dataclasses.replace(d, kinematic=False), log)["beta"]
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)
+
+
+def test_a_slide_on_mu_0_5_is_followed_with_a_wrong_model():
+    # the Vanagon slides to 14 deg on mu 0.5 and recovers; dakf-kinematic designed from the +40 % stiffness,
+    # +10 % inertia file: within 1 deg RMS (measured 0.74) and |error| < 3 beta_std on 99 % of the
+    # samples (measured 100 %); dakf (the same without the path) is off by 8 deg RMS there (its model says the
+    # tyres give what they do not, and the course fixes are gated)
+    p = load_vehicle("commonroad-3")
+    man = sine_with_dwell(80 / 3.6, SLIDE_HAND_WHEEL_DEG[3] * DEG / p.steering_ratio, start=2.0, after=8.0)
+    log = simulate(p, "commonroad-mb:3", man, disturbances=Disturbances(friction=Friction(mu=0.5)), sensors=SENS,
+                   seed=3).log_columns()
+    sel = log["t"] >= 1.0
+    assert np.degrees(np.abs(log["beta_true"]).max()) > 12.0
+    d = design_filter("dakf-kinematic", wrong(p), nominal=False)
+    est = run_estimator(d, log)
+    err = (est["beta"] - log["beta_true"])[sel]
+    assert np.degrees(np.sqrt(np.mean(err ** 2))) <= 1.0
+    assert np.mean(np.abs(err) < 3 * est["beta_std"][sel]) >= 0.99
+    lin = run_estimator(dataclasses.replace(d, kinematic=False), log)
+    assert np.degrees(np.sqrt(np.mean(((lin["beta"] - log["beta_true"])[sel]) ** 2))) > 5.0
