@@ -49,6 +49,7 @@ def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref-seconds", type=float, default=0.5)
+    ap.add_argument("--md", help="also write the docs' table as Markdown to this file")
     args = ap.parse_args(argv)
     p = load_vehicle("micro-ev")
     man = step_steer(25 / 3.6, np.radians(5.0), start=0.2, duration=10.0)
@@ -88,8 +89,21 @@ def main(argv=None):
     print(f"python-control linear ss of the same loop (its {k}-state feedback core at 25 km/h, linearised by "
           f"evstab), initial_response over 10 s: {per_lin * 1e6:.2f} us/step (evstab compiled nonlinear / linear "
           f"= {per_c / per_lin:.2f})")
-    from _yardstick import yardstick_line
+    from _yardstick import yardstick_line, yardstick_ns
     print(yardstick_line(per_c * 1e9, "closed loop per step"))
+    if args.md:
+        from pathlib import Path
+        from evstab.studies._common import write_markdown
+        y = yardstick_ns()
+        write_markdown(Path(args.md), ["10 s closed loop at 1 kHz (micro-ev, two-track, dakf + 2-DOF)", "per run",
+                                       "per step", "ratio"], [
+            ["evstab compiled (`loop_step` traced, `mapaccum`, C)", f"{best * 1e3:.1f} ms", f"{per_c * 1e6:.2f} us", "1"],
+            [f"python-control `nlsys` + `input_output_response` on the same step (over {args.ref_seconds:g} s)",
+             f"{per_ref * n:.1f} s", f"{per_ref * 1e6:.0f} us", f"{per_ref / per_c:.0f}x slower"],
+            [f"python-control linear `ss` of the same loop ({k}-state core), `initial_response`",
+             f"{per_lin * n * 1e3:.1f} ms", f"{per_lin * 1e6:.2f} us", f"{per_lin / per_c:.2f}"],
+            ["yardstick: hand-written dense 5-state Kalman step in C, gcc -O2", "",
+             "-" if y is None else f"{y:.0f} ns", "-" if y is None else f"loop step = {per_c * 1e9 / y:.1f}x it"]])
 
 
 if __name__ == "__main__":

@@ -58,6 +58,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--ref-cases", type=int, default=2)
     ap.add_argument("--plant", default="two-track", choices=["two-track", "bicycle-roll", "bicycle"])
+    ap.add_argument("--md", help="also write the docs' table as Markdown to this file")
     args = ap.parse_args()
     cfg = sw.SweepConfig(load_vehicle("compact-ev"), plant=args.plant)
     cases = random_cases(args.cases)
@@ -82,7 +83,8 @@ def main() -> None:
           f"the largest worker (target < 2 GiB)")
     t0 = time.perf_counter()
     sw.run_sweep(cfg, cases[:50], [sw.PAPER], workers=args.workers, progress=False, batch=5)
-    print(f"linear multi-rate verdicts included, first 50 cases: {time.perf_counter() - t0:.2f} s")
+    t_lin = time.perf_counter() - t0
+    print(f"linear multi-rate verdicts included, first 50 cases: {t_lin:.2f} s")
     t0 = time.perf_counter()
     ref = [python_loop_case(cfg, c) for c in cases[:args.ref_cases]]
     t_ref = (time.perf_counter() - t0) / args.ref_cases
@@ -92,6 +94,21 @@ def main() -> None:
     print(f"plain Python loop (simulator, numpy loop step): {t_ref:.2f} s per case, measured on {args.ref_cases} case(s) "
           f"-> {t_ref * args.cases:.0f} s for {args.cases} cases")
     print(f"ratio: {t_ref * args.cases / t_sweep:.0f}x")
+    if args.md:
+        from pathlib import Path
+        from _yardstick import yardstick_ns
+        from evstab.studies._common import write_markdown
+        y = yardstick_ns()
+        per = t_sweep / steps * 1e9
+        write_markdown(Path(args.md), [f"{args.cases} cases x {2 * sw.MANEUVER_DURATION:g} s at 1 kHz, {args.plant}, "
+                                       f"{args.workers} workers", "wall", "per loop step and case"], [
+            ["compiled sweep (rollouts only)", f"{t_sweep:.1f} s", f"{per:.0f} ns"
+             + ("" if y is None else f" ({per / y:.1f}x the C Kalman yardstick, {y:.0f} ns)")],
+            ["the first 50 cases with the linear multi-rate verdicts", f"{t_lin:.1f} s", ""],
+            [f"plain Python loop (the simulator's numpy loop step; {args.ref_cases} cases measured, scaled)",
+             f"{t_ref * args.cases:.0f} s", f"{t_ref / (2 * sw.MANEUVER_DURATION / cfg.dt) * 1e9 / 1e3:.0f} us "
+             f"({t_ref * args.cases / t_sweep:.0f}x the compiled sweep)"],
+            ["peak resident memory: this process / the largest worker", f"{own:.0f} / {child:.0f} MiB", ""]])
 
 
 if __name__ == "__main__":
