@@ -11,7 +11,7 @@ speed falls):
 * the lane change with a 2 s GPS outage and two bad fixes (3 satellites, course off by 0.1 rad);
 * seed 000's double lane change at 60 km/h on mu 0.5 (path-following driver);
 * a slide on mu 0.5: sine with dwell at 80 km/h with a hand-wheel amplitude that makes the car
-  slide and recover (:data:`SLIDE_HAND_WHEEL_DEG`: the Vanagon to 14 deg of sideslip, the
+  slide and recover (:data:`SLIDE_HAND_WHEEL_DEG`: the Vanagon to 21 deg of sideslip, the
   understeering Escort to 8 deg), with 8 s after the steer.
 
 Each estimator is designed from the bundled nominal file (``exact``: the file as derived from the
@@ -43,7 +43,7 @@ CARS = (1, 3)
 METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf-kinematic")
 START = 2.0
 DEG = np.pi / 180
-SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 40.0}
+SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 45.0}
 """Hand-wheel amplitude [deg] of each car's slide on mu 0.5 (sine with dwell at 80 km/h)."""
 
 

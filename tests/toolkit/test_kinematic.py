@@ -45,16 +45,17 @@ def test_the_kinematic_path_stays_out_of_linear_driving():
 
 
 def test_a_slide_on_mu_0_5_is_followed_with_a_wrong_model():
-    # the Vanagon slides to 14 deg on mu 0.5 and recovers; dakf-kinematic designed from the +40 % stiffness,
-    # +10 % inertia file: within 1 deg RMS (measured 0.74) and |error| < 3 beta_std on 99 % of the
-    # samples (measured 100 %); dakf (the same without the path) is off by 8 deg RMS there (its model says the
-    # tyres give what they do not, and the course fixes are gated)
+    # the Vanagon slides to 21 deg on mu 0.5 and recovers; dakf-kinematic designed from the +40 % stiffness,
+    # +10 % inertia file: within 1 deg RMS (measured 0.68; 1.02 on the 14 deg slide of a 40 deg
+    # hand-wheel amplitude) and |error| < 3 beta_std on 99 % of the samples (measured 100 %); dakf
+    # (the same without the path) is several degrees off there (its model says the tyres give what
+    # they do not, and the course fixes are gated)
     p = load_vehicle("commonroad-3")
     man = sine_with_dwell(80 / 3.6, SLIDE_HAND_WHEEL_DEG[3] * DEG / p.steering_ratio, start=2.0, after=8.0)
     log = simulate(p, "commonroad-mb:3", man, disturbances=Disturbances(friction=Friction(mu=0.5)), sensors=SENS,
                    seed=3).log_columns()
     sel = log["t"] >= 1.0
-    assert np.degrees(np.abs(log["beta_true"]).max()) > 12.0
+    assert np.degrees(np.abs(log["beta_true"]).max()) > 15.0
     d = design_filter("dakf-kinematic", wrong(p), nominal=False)
     est = run_estimator(d, log)
     err = (est["beta"] - log["beta_true"])[sel]
@@ -62,3 +63,18 @@ def test_a_slide_on_mu_0_5_is_followed_with_a_wrong_model():
     assert np.mean(np.abs(err) < 3 * est["beta_std"][sel]) >= 0.99
     lin = run_estimator(dataclasses.replace(d, kinematic=False), log)
     assert np.degrees(np.sqrt(np.mean(((lin["beta"] - log["beta_true"])[sel]) ** 2))) > 5.0
+
+
+def test_a_delayed_fix_does_not_engage_the_kinematic_path():
+    # the design job's sine lane change at 80 km/h on mu 1 (4 m/s^2) on the multi-body Escort, a GPS
+    # latency of 0.15 s the filter does not compensate: a delayed fix moves the estimate, and with it
+    # the model's lateral acceleration, for a moment; the lagged departure does not reach the
+    # threshold, so dakf-kinematic is dakf (measured 0.15 deg RMS both; without the lag 2.0)
+    from evstab.studies.control_mb_fmvss126 import wrong_nominal
+    from evstab.toolkit.sweep import SweepConfig, standard_maneuvers
+    p = wrong_nominal(1)
+    man = standard_maneuvers(SweepConfig(p, plant="commonroad-mb:1"), 80 / 3.6)[0]
+    log = simulate(p, "commonroad-mb:1", man, sensors=SensorConfig(gps_latency=0.15), seed=1).log_columns()
+    a = run_estimator(design_filter("dakf-kinematic", p), log)["beta"]
+    b = run_estimator(design_filter("dakf", p), log)["beta"]
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)  # rad: the weight stays 0 (see the linear test)

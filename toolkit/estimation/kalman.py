@@ -113,6 +113,7 @@ def layout(d: FilterDesign) -> Layout:
         Signal("gain", "-", "the gain of the last accepted fix", n),
         Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if watches_bias(d) else 0),
         Signal("buf", "rad", "the predicted course of the last samples (latency)", d.latency_samples),
+        Signal("dev", "m/s^2", "the kinematic path's evidence, lagged", 1 if d.kinematic else 0),
     ])
 
 
@@ -181,8 +182,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     kin = None
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
-        A, B, q, kin, w_kin = _kinematic_blend(d, A, B, q, x, uin, g, v_m, dyn * (init > 1.0 + nz.kinematic_settle),
-                                               o)
+        settled = dyn * (init > 1.0 + nz.kinematic_settle)
+        A, B, q, kin, w_kin, dev_lag = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.dev, o)
     E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
@@ -283,6 +284,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     extra = {"cusum": cusum} if watches_bias(d) else {}
     if nb > 0:
         extra["buf"] = buf_next
+    if d.kinematic:
+        extra["dev"] = dev_lag
     # init: 0 until the first usable fix, then 1 + the seconds since (capped)
     init = o.if_else(init > 0.5, o.fmin(init + dt, INIT_MAX), init)
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
@@ -306,19 +309,21 @@ def roll_compensation(p) -> float:
     return 1.0 / (1.0 + G * msh / (p.roll_stiffness - msh * G))
 
 
-def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, o):
+def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, dev_lag, o):
     """The sideslip row where the tyres have left the linear model: ``beta' = a_y / v - r`` (kinematics:
     no tyre model), blended in with the weight ``w`` from the measured (roll-compensated) lateral
     acceleration's departure from the linear model's at the current estimate,
-    ``a_model = v (beta'_model + r)``: ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``.
+    ``a_model = v (beta'_model + r)``, through a first-order lag of ``kinematic_dev_tau`` (``dev_lag``,
+    the state): ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``.
     The row becomes ``(1 - w) row_model + w (a_y / v - r)``, its process noise
     ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
-    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, w)``."""
+    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, w,
+    dev_lag_next)``."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
     ay = g.ay * roll_compensation(d.params)
     a_model = v_m * (_dot(_col([A[ib, j] for j in range(n)], o), x, o) + B[ib, 0] * uin[0] + B[ib, 1] * uin[1] + x[ir])
-    dev = o.fabs(ay - a_model)
+    dev = dev_lag + (o.fabs(ay - a_model) - dev_lag) * o.fmin(g.dt / d.noise.kinematic_dev_tau, 1.0)
     w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
     if g.ay_ok is not None:
         w = w * g.ay_ok
@@ -336,7 +341,7 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, o):
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
-    return A, B, q, kin, w
+    return A, B, q, kin, w, dev
 
 
 def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):

@@ -48,9 +48,9 @@ Methods
     sideslip = course - heading at each fix taken while turning.
 ``dakf-kinematic``
     ``dakf`` with the kinematic sideslip path at the limit (:func:`toolkit.estimation.kalman.step`):
-    where the measured lateral acceleration leaves the linear model's, ``beta' = a_y / v - r`` takes
-    over. Not the default: with a GPS latency the filter does not compensate it also takes over in
-    linear driving (a delayed fix moves the sideslip, which moves the model's lateral acceleration).
+    where the measured lateral acceleration leaves the linear model's for longer than a delayed
+    course fix can make it, ``beta' = a_y / v - r`` takes over. Not the default yet: the closed loop
+    has not been judged with it.
 """
 
 from __future__ import annotations
@@ -141,6 +141,9 @@ class NoiseSettings:
     at which the kinematic sideslip rate starts to take over (filters with ``kinematic``)."""
     kinematic_ay_full: float = 1.0
     """[m/s^2] ... and at which it has taken over entirely."""
+    kinematic_dev_tau: float = 0.15
+    """[s] The departure counts through a first-order lag of this time constant: a slide sustains it, a
+    delayed course fix that moves the estimate for a sample does not."""
     kinematic_settle: float = 2.0
     """[s] The kinematic path waits this long after the first fix (the estimate settling)."""
     q_beta_kinematic: float = 0.02
