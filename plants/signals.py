@@ -116,10 +116,6 @@ class Layout(tuple):
     def units(self) -> tuple[str, ...]:
         return tuple(s.unit for s in self.signals)
 
-    def rename(self, title: str, prefix: str = "") -> "Layout":
-        """The same entries under a new title, names prefixed with ``prefix``."""
-        return Layout(title, [_renamed(s, prefix + s.name) for s in self.signals])
-
     # ---------------------------------------------------------------- vectors
     def _get(self, vec, s: Signal):
         i = self._offsets[s.name]
@@ -193,12 +189,6 @@ class Layout(tuple):
                              f"({', '.join(self)}), got shape {table.shape}")
         return {s.name: (table[:, self._offsets[s.name]] if s.size == 1 else table[:, self.slot(s.name)])
                 for s in self.signals}
-
-    def table(self) -> str:
-        """A markdown table of the entries (name, unit, meaning)."""
-        rows = ["| entry | unit | meaning |", "| --- | --- | --- |"]
-        rows += [f"| `{s.name}` | {s.unit} | {s.doc} |" for s in self.signals]
-        return "\n".join(rows)
 
 
 def join(title: str, *parts: tuple[str, Layout]) -> Layout:

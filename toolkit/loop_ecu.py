@@ -22,7 +22,7 @@ from evstab.plants.signals import Layout, Signal
 from .estimation import design_filter
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
-from .firmware.ecu import (FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign, control_layout,
+from .firmware.ecu import (CONTROL_STATE, FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign,
                            ecu_control, ecu_estimate, rear_torques)
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
@@ -96,7 +96,7 @@ class LoopEcu:
         if ne:
             z[lay.slot("filter")] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
         if self.kind not in ("driver", "yaw-pi"):
-            z[lay.slot("control")] = control_layout().pack(controller=ctl_mod.STATE.zeros(),
+            z[lay.slot("control")] = CONTROL_STATE.pack(controller=ctl_mod.STATE.zeros(),
                                                            supervisor=np.asarray(sup_mod.initial_state(self.ecu.controller)))
         return z
 
@@ -132,10 +132,10 @@ class LoopEcu:
                 for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
                     ys[name] = zero
                 y = ECU_OUTPUTS.pack(ys, o)
-                parts = control_layout().as_dict(z_ctl_n)
+                parts = CONTROL_STATE.as_dict(z_ctl_n)
                 law = ctl_mod.STATE.as_dict(parts["controller"])
                 law["xi_beta"] = law["xi_yaw_rate"] = zero
-                z_ctl_n = control_layout().pack(o=o, controller=ctl_mod.STATE.pack(law, o),
+                z_ctl_n = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law, o),
                                                 supervisor=parts["supervisor"])
         z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
         return z_next, y

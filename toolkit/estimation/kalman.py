@@ -34,6 +34,8 @@ loop or inside a compiled casadi ``mapaccum``.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from evstab.plants import G
@@ -103,17 +105,22 @@ def watches_bias(d: FilterDesign) -> bool:
 
 def layout(d: FilterDesign) -> Layout:
     """The parts of the flat filter state."""
-    n = d.n
+    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic)
+
+
+@lru_cache(maxsize=64)
+def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool) -> Layout:
+    n = len(states)
     return Layout("filter state", [
-        Signal("x", "-", f"the state ({', '.join(d.states)})", n),
+        Signal("x", "-", f"the state ({', '.join(states)})", n),
         Signal("P", "-", "its covariance, column-major", n * n),
         Signal("rejects", "-", "gated fixes in a row"),
         Signal("eps", "rad", "the last course innovation (inter-sample residual prediction)"),
         Signal("init", "s", "0 until the heading is initialised by a fix, then 1 + the seconds since (at most INIT_MAX)"),
         Signal("gain", "-", "the gain of the last accepted fix", n),
-        Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if watches_bias(d) else 0),
-        Signal("buf", "rad", "the predicted course of the last samples (latency)", d.latency_samples),
-        Signal("dev", "m/s^2", "the kinematic path's evidence, lagged", 1 if d.kinematic else 0),
+        Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if cusum else 0),
+        Signal("buf", "rad", "the predicted course of the last samples (latency)", nb),
+        Signal("dev", "m/s^2", "the kinematic path's evidence, lagged", 1 if kinematic else 0),
     ])
 
 
@@ -183,7 +190,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
-        A, B, q, kin, w_kin, dev_lag = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.dev, o)
+        A, B, q, kin, dev_lag = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.dev, o)
     E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
@@ -317,8 +324,7 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, dev_lag, o):
     the state): ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``.
     The row becomes ``(1 - w) row_model + w (a_y / v - r)``, its process noise
     ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
-    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, w,
-    dev_lag_next)``."""
+    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, dev_lag_next)``."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
     ay = g.ay * roll_compensation(d.params)
@@ -341,7 +347,7 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, dev_lag, o):
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
-    return A, B, q, kin, w, dev
+    return A, B, q, kin, dev
 
 
 def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -78,8 +79,6 @@ OUTPUTS = Layout("ECU outputs", [
     Signal("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
     Signal("mu_est", "-", "friction estimate the reference is limited with"),
 ])
-INPUT_NAMES = tuple(INPUTS)
-OUTPUT_NAMES = tuple(OUTPUTS)
 FIRMWARE_METHODS = LOOP_METHODS
 
 
@@ -197,7 +196,7 @@ class EcuDesign:
 
     def initial_state(self) -> np.ndarray:
         """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
-        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), control_layout().pack(
+        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), CONTROL_STATE.pack(
             controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(sup_mod.initial_state(self.controller)))])
 
     @property
@@ -277,13 +276,17 @@ def with_schedule_rows(d: EcuDesign, sched) -> EcuDesign:
 
 def state_layout(f: FilterDesign) -> Layout:
     """The ECU state of a design with filter ``f`` (see :attr:`EcuDesign.layout`)."""
-    fl = kalman.layout(f)
-    return Layout("ECU state", [*fl.signals, *control_layout().signals])
+    return _state_layout(kalman.layout(f).signals)
+
+
+@lru_cache(maxsize=64)
+def _state_layout(filter_signals: tuple) -> Layout:
+    return Layout("ECU state", [*filter_signals, *CONTROL_STATE.signals])
 
 
 def filter_part(lay: Layout) -> slice:
-    """The filter's part of the ECU state ``lay`` (:func:`state_layout`)."""
-    return lay.span("x", "buf")
+    """The filter's part of the ECU state ``lay`` (:func:`state_layout`): everything before the controller's."""
+    return slice(0, lay.index("controller"))
 
 
 def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
@@ -311,7 +314,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     friction estimate, activation, authority (see :mod:`controllers.supervisor`)."""
     g = INPUTS.as_dict(u)
     c = d.controller
-    parts = control_layout().unpack(z_ctl)
+    parts = CONTROL_STATE.unpack(z_ctl)
     z_law, z_sup = parts.controller, parts.supervisor
     law_st, sup_st = ctl_mod.STATE.unpack(z_law), sup_mod.STATE.unpack(z_sup)
     vm = o.fmax(g["speed"], c.min_speed)
@@ -347,15 +350,14 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
                                                    "gps_used")},
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"], mu_est=mu_est)
-    z_next = control_layout().pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
+    z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
 
 
-def control_layout() -> Layout:
-    """The controller part of the ECU state: the law's, then the supervisor's."""
-    return Layout("ECU control state", [
-        Signal("controller", "-", "the control law's state (controllers.two_dof.STATE)", ctl_mod.STATE.size),
-        Signal("supervisor", "-", "the supervisor's state (controllers.supervisor.STATE)", sup_mod.STATE.size)])
+CONTROL_STATE = Layout("ECU control state", [
+    Signal("controller", "-", "the control law's state (controllers.two_dof.STATE)", ctl_mod.STATE.size),
+    Signal("supervisor", "-", "the supervisor's state (controllers.supervisor.STATE)", sup_mod.STATE.size)])
+"""The controller part of the ECU state: the law's, then the supervisor's."""
 
 
 def rear_torques(d: EcuDesign, yaw_moment, o=NUMPY):
