@@ -196,7 +196,7 @@ def cmd_estimate(args) -> int:
                                         ("; no sensor fault flagged" if flagged else "")) + f" -> {args.out}")
     if args.method != "lob":
         from .estimation.diagnostics import course_report
-        print("  " + course_report(est.columns))
+        print("  " + course_report(est.columns, t=est.t))
     return 0
 
 
@@ -234,7 +234,7 @@ def _require_finite(source, t, signals: dict) -> None:
 
 def _tune_noise(args, d, log) -> int:
     from .estimation.noise_fit import fit_noise, write_noise
-    kalman_methods = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf", "dakf-kinematic")
+    kalman_methods = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf")
     if d.method not in kalman_methods:
         raise EvstabError(f"--tune fits the noise of the Kalman methods ({', '.join(kalman_methods)}), "
                           f"not '{d.method}'")

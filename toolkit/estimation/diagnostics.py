@@ -99,16 +99,32 @@ def nis_consistency(nis, alpha: float = 0.05) -> NisConsistency:
                           float(_chi2_ppf(1 - alpha / 2, n) / n))
 
 
-def course_report(est_columns: dict, alpha: float = 0.05) -> str:
-    """One line on the course residuals of a run (the fixes the filter used), for the console."""
+WARMUP = 5.0
+"""[s] The residual tests count the fixes from this long after the log's start: the filter's initial
+covariance is a prior for a cold start, not its steady state (the noise fit skips the same)."""
+
+
+def used_residuals(est_columns: dict, t=None, warmup: float = WARMUP) -> np.ndarray:
+    """The normalised course residuals of the fixes a run used, NaN elsewhere and in the first ``warmup``
+    seconds (``t``: the run's times; None: no warm-up)."""
     r = np.asarray(est_columns.get("course_resid", []), float)
     used = np.asarray(est_columns.get("gps_used", np.zeros(len(r))), float) > 0.5
-    r = np.where(used, r, np.nan)
+    if t is not None and len(r):
+        t = np.asarray(t, float)
+        used &= t >= t[0] + warmup
+    return np.where(used, r, np.nan)
+
+
+def course_report(est_columns: dict, alpha: float = 0.05, t=None, warmup: float = WARMUP) -> str:
+    """One line on the course residuals of a run (the fixes the filter used after ``warmup`` seconds of
+    ``t``), for the console."""
+    r = used_residuals(est_columns, t, warmup)
     if np.sum(np.isfinite(r)) < 15:
         return "course residuals: fewer than 15 used fixes, no whiteness or NIS test"
     w = whiteness(r, alpha=alpha)
     c = nis_consistency(r[np.isfinite(r)] ** 2, alpha)
-    return (f"course residuals over {w.n} fixes: Ljung-Box Q({w.lags}) = {w.ljung_box:.1f}, p = {w.p_value:.3g} "
+    after = "" if t is None else f" after the first {warmup:g} s"
+    return (f"course residuals over {w.n} fixes{after}: Ljung-Box Q({w.lags}) = {w.ljung_box:.1f}, p = {w.p_value:.3g} "
             f"({'white' if w.white else 'NOT white'} at {alpha:g}; {w.outside} of {w.lags} lags outside "
             f"+-{w.bound:.3f}); mean NIS {c.mean:.2f} ({'inside' if c.consistent else 'OUTSIDE'} "
             f"[{c.low:.2f}, {c.high:.2f}])")

@@ -223,6 +223,6 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
                     out["beta_std"])
         out.update({"vx": l2["vx"], "vy": l2["vy"], "roll": l2["roll"]})
     if screened is not None:
-        from .monitor import estimate_flags
-        out.update(estimate_flags(screened, out, d.noise.gate))
+        from .monitor import MonitorSettings, estimate_flags
+        out.update(estimate_flags(screened, out, monitor if isinstance(monitor, MonitorSettings) else None))
     return Estimate(cols["t"], out, d.method, cf.backend)
