@@ -40,7 +40,7 @@ from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
 
 CARS = (1, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer")
+METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf-kinematic")
 START = 2.0
 DEG = np.pi / 180
 SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 45.0}

@@ -234,7 +234,7 @@ def _require_finite(source, t, signals: dict) -> None:
 
 def _tune_noise(args, d, log) -> int:
     from .estimation.noise_fit import fit_noise, write_noise
-    kalman_methods = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf")
+    kalman_methods = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf", "dakf-kinematic")
     if d.method not in kalman_methods:
         raise EvstabError(f"--tune fits the noise of the Kalman methods ({', '.join(kalman_methods)}), "
                           f"not '{d.method}'")

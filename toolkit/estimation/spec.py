@@ -16,11 +16,8 @@ Methods
     first-order Gauss-Markov processes with correlation time ``disturbance_tau``
     (they can no longer hold a sideslip offset against a heading offset forever),
     a gyro-bias random walk, a zero-yaw-rate pseudo-measurement at standstill,
-    course noise from HDOP and 1/speed, fixes with < 4 satellites dropped,
-    chi-square innovation gating, and the kinematic sideslip path at the limit
-    (:func:`toolkit.estimation.kalman.step`): where the measured lateral acceleration
-    leaves the linear model's for longer than a delayed course fix can make it,
-    ``beta' = a_y / v - r`` takes over (off where the log has no ``ay``).
+    course noise from HDOP and 1/speed, fixes with < 4 satellites dropped, and
+    chi-square innovation gating.
 ``amrkf``
     ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29).
 ``kf``
@@ -49,6 +46,11 @@ Methods
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
     sideslip = course - heading at each fix taken while turning.
+``dakf-kinematic``
+    ``dakf`` with the kinematic sideslip path at the limit (:func:`toolkit.estimation.kalman.step`):
+    where the measured lateral acceleration leaves the linear model's for longer than a delayed
+    course fix can make it, ``beta' = a_y / v - r`` takes over. Not the default yet: the closed loop
+    has not been judged with it.
 """
 
 from __future__ import annotations
@@ -65,10 +67,10 @@ from evstab.plants.errors import ModelError
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 """Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of
 :mod:`toolkit.estimation.kalman`."""
-METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer")
+METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer", "dakf-kinematic")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
                   "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading"),
-                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}
+                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed"), "dakf-kinematic": ("ay",)}
 """Drive-log columns a method needs beyond the schema's required ones (``dual-antenna`` uses a third
 antenna's ``gps_roll`` when the log has it, and runs on the heading alone, the common installation,
 when it does not)."""
@@ -86,7 +88,7 @@ class NoiseSettings:
     """
 
     q_beta: float = 1.4e-5
-    """[rad^2/s] white noise on beta'."""
+    """[rad^2/s^3 ... per unit of beta'] white noise on beta'."""
     q_yaw_rate: float = 0.023
     q_yaw: float = 1e-8
     q_d1: float = 0.02
@@ -236,9 +238,10 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
                             False, latency, antenna_x, dt)
-    if method in ("dakf", "amrkf", "double-layer"):
+    if method in ("dakf", "amrkf", "double-layer", "dakf-kinematic"):
         return FilterDesign(method, lat + ("d1", "d2", "gyro_bias"), p, noise, "gauss-markov", True, True, True,
-                            True, method in ("amrkf", "double-layer"), latency, antenna_x, dt, kinematic=True)
+                            True, method in ("amrkf", "double-layer"), latency, antenna_x, dt,
+                            kinematic=method == "dakf-kinematic")
     if method == "kf":
         return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
     if method == "mbkf":
