@@ -233,10 +233,9 @@ def _require_finite(source, t, signals: dict) -> None:
 
 
 def _tune_noise(args, d, log) -> int:
-    from .estimation.noise_fit import fit_noise, write_noise
-    kalman_methods = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias", "mbkf", "dakf-kinematic")
-    if d.method not in kalman_methods:
-        raise EvstabError(f"--tune fits the noise of the Kalman methods ({', '.join(kalman_methods)}), "
+    from .estimation.noise_fit import METHODS, fit_noise, write_noise
+    if d.method not in METHODS:
+        raise EvstabError(f"--tune fits the noise of the Kalman methods ({', '.join(METHODS)}), "
                           f"not '{d.method}'")
     fit = fit_noise(d, log)
     write_noise(args.out, fit, d.noise, f"evstab estimate --tune {args.log} --vehicle {args.vehicle} "

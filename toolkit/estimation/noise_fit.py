@@ -33,8 +33,11 @@ from evstab.plants.errors import DataError, ParameterError
 
 from . import kalman
 from .runner import compiled_filter, initial_state, log_inputs
-from .spec import FilterDesign, NoiseSettings
+from .spec import LOOP_METHODS, FilterDesign, NoiseSettings
 
+METHODS = LOOP_METHODS + ("mbkf", "dakf-kinematic")
+"""The methods whose noise :func:`fit_noise` fits: those that run the Kalman step of
+:mod:`toolkit.estimation.kalman` (its ``gyro_var`` and ``course_var`` outputs)."""
 BOUND = 4.0
 """Each fitted intensity stays within a factor e^4 (55) of its start."""
 SENSOR = ("gyro_std", "gps_velocity_std")
@@ -109,7 +112,7 @@ def fit_noise(d: FilterDesign, log, parameters: tuple[str, ...] | None = None, *
     Parameters
     ----------
     d : FilterDesign
-        A Kalman design (``dakf``, ``amrkf``, ``dakf-paper``, ``kf``, ``kf-bias``, ``mbkf``); its
+        A design of one of :data:`METHODS` (the Kalman filters); its
         noise is the start.
     log : DriveLog or mapping
         The drive log (``*_true`` columns are not read).

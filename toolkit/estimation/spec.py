@@ -201,10 +201,10 @@ class FilterDesign:
     schedule: object = None
     """A :class:`controllers.schedule.SpeedSchedule`: the lateral model from tables (firmware), or None (exact)."""
     steer_noise: bool = False
+    """Process noise through the steer input (``NoiseSettings.q_steer``; ``mbkf``)."""
     kinematic: bool = False
     """Blend the kinematic sideslip rate ``a_y / v - r`` into the sideslip row where the measured lateral
     acceleration departs from the linear model's (the tyres saturated; :func:`toolkit.estimation.kalman.step`)."""
-    """Process noise through the steer input (``NoiseSettings.q_steer``; ``mbkf``)."""
 
     @property
     def n(self) -> int:
