@@ -77,7 +77,7 @@ def main(argv=None):
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.estimation import design_filter
     from evstab.toolkit.stability import loop_linearisation
-    lin = loop_linearisation(TwoDofDesign(p.as_nominal()), design_filter("dakf", p), 25 / 3.6, true_params=p)
+    lin = loop_linearisation(TwoDofDesign(p.as_nominal()), design_filter("dakf", p, control=True), 25 / 3.6, true_params=p)
     A = lin.monodromy
     k = A.shape[0]
     lsys = control.ss(A, np.zeros((k, 1)), np.eye(k), np.zeros((k, 1)), dt=1e-3)

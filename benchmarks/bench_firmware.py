@@ -100,7 +100,7 @@ ASSIGN
 
 def build_design(out: Path) -> Path:
     p = load_vehicle("compact-ev")
-    doc = basic_design_document(p, design_filter("dakf", p), TwoDofDesign(p.as_nominal()),
+    doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
                                 {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10},
                                 "benchmarks/bench_firmware.py")
     out.mkdir(parents=True, exist_ok=True)

@@ -40,7 +40,9 @@ from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
 
 CARS = (1, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf-kinematic")
+METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf (ECU)")
+"""The methods of the table; ``dakf (ECU)`` is the ECU's filter (``design_filter(..., control=True)``:
+the stability loop's noise, no kinematic path)."""
 START = 2.0
 DEG = np.pi / 180
 SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 45.0}
@@ -88,7 +90,9 @@ def main(out, quick: bool = False) -> list[dict]:
             lateral = sel & (np.abs(log["ay_true"] if "ay_true" in log else log["ay"]) > 1.0)
             for label, nominal in (("exact", p), ("off", wrong(p))):
                 for m in METHODS[:3] if quick else METHODS:
-                    est = run_estimator(design_filter(m, nominal, nominal=False), log)
+                    ecu = m.endswith(" (ECU)")
+                    est = run_estimator(design_filter(m.removesuffix(" (ECU)"), nominal, nominal=False, control=ecu),
+                                        log)
                     err = np.degrees(est["beta"] - log["beta_true"])
                     rows.append({"car": f"commonroad-mb:{n}", "drive": name, "nominal": label, "method": m,
                                  "rms_deg": float(np.sqrt(np.mean(err[sel] ** 2))),

@@ -170,7 +170,7 @@ def load_design(path) -> LoadedDesign:
         est = doc["estimator"]
         noise = NoiseSettings(**est["noise"])
         fd = design_filter(est["method"], params, noise, latency=est["latency_s"], antenna_x=est["antenna_x_m"],
-                           dt=est["dt_s"])
+                           dt=est["dt_s"], control=True)
         c = dict(doc["controller"])
         ctl = TwoDofDesign(params, **{k: v for k, v in c.items() if k != "yaw_moment_max"},
                            yaw_moment_max=c["yaw_moment_max"])

@@ -158,7 +158,7 @@ def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: 
         if estimator not in FIRMWARE_METHODS:
             raise LoopError(f"the loop runs the ECU step, whose filter is one of {', '.join(FIRMWARE_METHODS)}; "
                             f"got estimator '{estimator}' (other methods run on logs: evstab estimate)")
-        filt = design_filter(estimator, nominal, dt=dt, latency=latency)
+        filt = design_filter(estimator, nominal, dt=dt, latency=latency, control=True)
     ctl = design if design is not None else TwoDofDesign(nominal.as_nominal(), dt=dt)
     ctl.params.require("track_rear", "wheel_radius", "max_motor_torque", model="the stability loop's ECU "
                        "(yaw-moment split over the rear motors)")

@@ -158,7 +158,8 @@ class SweepConfig:
         return TwoDofDesign(self.nominal.as_nominal(), dt=self.dt)
 
     def filter_design(self, point: DesignPoint) -> FilterDesign:
-        base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency)
+        base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency,
+                             control=True)
         return dataclasses.replace(base, noise=point.noise(base.noise))
 
     def spec(self):

@@ -86,17 +86,20 @@ def test_control_limits_default_controller_does_no_harm(tmp_path):
             assert r["2-DOF default"].endswith("PASS"), r
 
 
-def test_estimation_on_the_multibody_car_meets_the_targets_it_meets(tmp_path):
-    # regression guard of what docs/estimators.md states for dakf with the wrong model (+40 %
-    # stiffness, +10 % inertias) on the Escort, against the targets of a good inertial reference:
-    # <= 0.15 deg RMS and 0.5 deg max on the lane changes, 0.25 RMS on the mu 0.5 double lane
-    # change, 0.4 RMS on the ramp (the sine with dwell misses its target and is not asserted)
+def test_estimation_on_the_multibody_car_meets_the_targets(tmp_path):
+    # what docs/estimators.md states for dakf with the wrong model (+40 % stiffness, +10 % inertias)
+    # on the Escort (quick: this car), against the targets of a good inertial reference: <= 0.15 deg
+    # RMS and 0.5 deg max on the lane changes and the sine with dwell, 0.25 RMS on the mu 0.5 double
+    # lane change, 0.4 RMS on the ramp; the slide to 8 deg within 1 deg RMS (the Vanagon's drives:
+    # tests/toolkit/test_kinematic.py). Measured: 0.08 / 0.11 / 0.07 RMS (max 0.19 / 0.34 / 0.19),
+    # 0.05, 0.11, 0.11
     rows = _rows(_run("estimation_mb", tmp_path) / "estimation_mb.csv")
     got = {r["drive"]: r for r in rows if r["car"] == "commonroad-mb:1" and r["nominal"] == "off"
            and r["method"] == "dakf"}
-    for drive in ("lane change 25 km/h", "lane change, 2 s outage, 2 bad fixes"):
+    for drive in ("lane change 25 km/h", "lane change, 2 s outage, 2 bad fixes", "sine with dwell 80 km/h (3.5 A)"):
         assert float(got[drive]["rms_deg"]) <= 0.15 and float(got[drive]["max_deg"]) <= 0.5, drive
     assert float(got["double lane change 60 km/h mu 0.5"]["rms_deg"]) <= 0.25
+    assert float(got["slide 80 km/h mu 0.5"]["rms_deg"]) <= 1.0
     assert float(got["ramp 0-4 deg 60 km/h"]["rms_deg"]) <= 0.4
 
 
@@ -130,13 +133,13 @@ def test_noise_fit_recovers_the_logs_sensor_noise(tmp_path):
 
 
 def test_estimation_consistency_table(tmp_path):
-    # quick: compact-ev only. What docs/estimators.md says of the default intensities: on evstab's own
-    # logs the course innovations are smaller than the filter predicts (mean NIS below the interval:
-    # measured 0.14-0.20 on compact-ev, 0.11-0.27 on all six cars), while the sideslip error stays
-    # small (0.15 deg: twice the largest measured RMS on compact-ev, 0.096)
+    # quick: compact-ev only. What docs/estimators.md says of the default noise: on evstab's own logs
+    # the course innovations are as large as the filter predicts (mean NIS inside its 95 % interval:
+    # measured 0.74-0.91 on compact-ev, 0.73-1.10 on all six cars), and the sideslip error is small
+    # (0.15 deg: twice the largest measured RMS on compact-ev, 0.070)
     rows = _rows(_run("estimation_consistency", tmp_path) / "consistency.csv")
     assert len(rows) == 6
     for r in rows:
         assert int(r["fixes"]) >= 60  # 15 s of 5 Hz fixes after the warm-up (a few fall to the gate)
-        assert float(r["mean_nis"]) < float(r["low"]), r
+        assert float(r["low"]) <= float(r["mean_nis"]) <= float(r["high"]), r
         assert float(r["beta_rms_deg"]) < 0.15, r

@@ -11,7 +11,7 @@ from evstab.toolkit.estimation import design_filter
 
 def test_speed_grid_rows():
     p = load_vehicle("compact-ev")
-    rows = speed_grid(p, design_filter("dakf", p), TwoDofDesign(p.as_nominal()), speeds_kmh=(20.0, 100.0))
+    rows = speed_grid(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()), speeds_kmh=(20.0, 100.0))
     assert [r["speed_kmh"] for r in rows] == [20.0, 100.0]
     for r in rows:
         assert r["observable"] and r["observability_rank"] == 6 and r["unobservable"] == "-"

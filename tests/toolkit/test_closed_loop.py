@@ -36,7 +36,7 @@ def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(mon
     assert len(calls) == 51
     simulate(p, "two-track", iso3888_1(25 / 3.6, p.width), controller="none")  # path driver: same trace kind
     assert len(calls) == 52
-    stability.estimator_loop(TwoDofDesign(p.as_nominal()), design_filter("dakf", p), 10.0, gps_rate=5.0)
+    stability.estimator_loop(TwoDofDesign(p.as_nominal()), design_filter("dakf", p, control=True), 10.0, gps_rate=5.0)
     assert len(calls) == 53  # the analysis traced the same step (bicycle truth) and differentiated it
 
 
@@ -112,7 +112,7 @@ def test_a_design_folder_ecu_runs_in_the_loop():
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.firmware.ecu import EcuDesign
     p = load_vehicle("micro-ev")
-    ecu = EcuDesign.from_designs(design_filter("dakf", p), TwoDofDesign(p.as_nominal(), k_beta=9.0))
+    ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal(), k_beta=9.0))
     man = step_steer(25 / 3.6, np.radians(4.0), start=0.2, duration=1.0)
     a = simulate(p, "two-track", man, controller="two-dof", design=ecu)
     b = simulate(p, "two-track", man, controller="two-dof", design=TwoDofDesign(p.as_nominal(), k_beta=9.0))

@@ -49,7 +49,7 @@ def design_dir(tmp_path_factory):
     """A design folder with gains and noise away from the defaults (so calibration values travel)."""
     p = load_vehicle("compact-ev")
     noise = NoiseSettings(q_beta=2.1e-5, q_yaw_rate=0.05, q_d1=0.004, q_d2=0.03)
-    filt = design_filter("dakf", p, noise)
+    filt = design_filter("dakf", p, noise, control=True)
     # dead bands low enough that the lane change below switches the law on and off (so activation,
     # blending and the authority limit are exercised), and away from the defaults
     ctl = TwoDofDesign(p.as_nominal(), k_beta=6.5, k_gamma=4.25, yaw_priority=2.0, yaw_rate_deadband=np.radians(0.5),

@@ -51,7 +51,7 @@ def test_steer_authority_comes_from_the_vehicle_file():
     assert d.steer_authority == np.deg2rad(5.0) and d.steer_authority_rate == np.deg2rad(40.0)
     from evstab.toolkit.estimation import design_filter
     from evstab.toolkit.firmware.ecu import EcuDesign
-    cal = {c.name: c.value for c in EcuDesign.from_designs(design_filter("dakf", q), d).calibration()}
+    cal = {c.name: c.value for c in EcuDesign.from_designs(design_filter("dakf", q, control=True), d).calibration()}
     assert cal["steer_authority"] == np.deg2rad(5.0) and cal["steer_authority_rate"] == np.deg2rad(40.0)
     with pytest.raises(ValueError, match="steer_authority"):
         dataclasses.replace(p, steer_authority=-0.1)

@@ -52,7 +52,7 @@ def _case(vehicle, kb, kg, error):
 def test_jacobian_monodromy_equals_the_frozen_closed_form(key):
     vehicle, method, kb, kg, error, rate = key
     p, d, v, true = _case(vehicle, kb, kg, error)
-    lin = st.loop_linearisation(d, design_filter(method, p), v, true_params=true, gps_rate=rate)
+    lin = st.loop_linearisation(d, design_filter(method, p, control=True), v, true_params=true, gps_rate=rate)
     eig = np.linalg.eigvals(lin.monodromy)
     gold = np.array([complex(*c) for c in GOLDEN[key]])
     for g in gold:  # 1e-9: the bound; measured 4e-12 (rounding through 1000 sample products)
@@ -113,7 +113,7 @@ def test_monodromy_agrees_with_the_loop_run_in_time(unstable):
 
 def test_excessive_gain_is_unstable_in_the_sampled_loop():
     p = load_vehicle("compact-ev")
-    est = design_filter("dakf", p)
+    est = design_filter("dakf", p, control=True)
     assert st.estimator_loop(TwoDofDesign(p.as_nominal()), est, 20.0, gps_rate=5.0)[1].stable
     # K dt = 4 > 2: the sampled proportional path overshoots every sample
     assert not st.estimator_loop(TwoDofDesign(p.as_nominal(), k_beta=4000, k_gamma=4000), est, 20.0,

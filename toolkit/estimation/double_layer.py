@@ -18,7 +18,9 @@ Baselines: :func:`roll_kf` (Tseng et al.: states ``phi, phi'``, roll-rate measur
 ``v_x, v_y`` with the non-driven wheels' speed as the ``v_x`` measurement).
 
 These run in numpy over a whole log (a 5-state filter at 1 kHz: about 3 s per minute
-of log); ``evstab estimate --method double-layer`` runs layer 2 on ``amrkf``'s estimate.
+of log); ``evstab estimate --method double-layer`` runs layer 2 on ``dakf``'s estimate (004's layer 1
+is the advanced multi-rate filter, ``amrkf``; with evstab's noise its inter-sample residual
+prediction over-corrects, so layer 1 is the filter without it).
 """
 
 from __future__ import annotations

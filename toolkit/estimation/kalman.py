@@ -64,6 +64,7 @@ INPUTS = Layout("filter inputs", [
     Signal("gps_roll", "rad", "total roll from a third antenna", optional=True),
     Signal("gps_roll_valid", "-", "1 where gps_roll is measured", optional=True),
     Signal("ay_ok", "-", "0 where the log has no lateral acceleration (absent: 1)", optional=True),
+    Signal("roll_rate_ok", "-", "1 where roll_rate is measured (absent: 0)", optional=True),
 ])
 """The Kalman step reads the first 11 (``gyro_ok`` optional); the rest feed other methods (``two-stage``)."""
 OUTPUTS = Layout("filter outputs", [
@@ -94,6 +95,13 @@ def outputs(o, like, **values):
     return OUTPUTS.pack(values, o, like=like, fill=float("nan"))
 
 
+KINEMATIC = Layout("kinematic path state", [
+    Signal("dev", "m/s^2", "the departure of the lateral acceleration from the model's, lagged"),
+    Signal("ay_level", "m/s^2", "the lateral acceleration's magnitude, peak-held"),
+    Signal("roll", "rad", "the body's roll angle (roll gyro and static roll model)"),
+    Signal("ay_offset", "m/s^2", "the lateral accelerometer's offset in straight driving (road bank, bias)"),
+])
+"""The kinematic sideslip path's part of the filter state (:func:`_kinematic_blend`)."""
 INIT_MAX = 60.0
 """Cap of the filter state's ``init`` entry (1 + seconds since the first fix)."""
 
@@ -105,11 +113,16 @@ def watches_bias(d: FilterDesign) -> bool:
 
 def layout(d: FilterDesign) -> Layout:
     """The parts of the flat filter state."""
-    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic)
+    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d))
+
+
+def adapts(d: FilterDesign) -> bool:
+    """Whether the design scales its process noise by the course innovations (``NoiseSettings.adapt_rate``)."""
+    return bool(d.noise.adapt_rate > 0 and d.hdop_noise)
 
 
 @lru_cache(maxsize=64)
-def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool) -> Layout:
+def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adaptive: bool) -> Layout:
     n = len(states)
     return Layout("filter state", [
         Signal("x", "-", f"the state ({', '.join(states)})", n),
@@ -120,7 +133,8 @@ def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool) -> L
         Signal("gain", "-", "the gain of the last accepted fix", n),
         Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if cusum else 0),
         Signal("buf", "rad", "the predicted course of the last samples (latency)", nb),
-        Signal("dev", "m/s^2", "the kinematic path's evidence, lagged", 1 if kinematic else 0),
+        Signal("kin", "-", "the kinematic path's state (KINEMATIC)", KINEMATIC.size if kinematic else 0),
+        Signal("qscale", "-", "the process noise's innovation-adaptive scale", 1 if adaptive else 0),
     ])
 
 
@@ -133,6 +147,7 @@ def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) ->
     z[lay.slot("x")] = x
     z[lay.slot("P")] = d.initial_covariance().ravel(order="F")
     z[lay.slot("buf")] = yaw0
+    z[lay.slot("qscale")] = 1.0
     return z
 
 
@@ -186,11 +201,18 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     A, B = continuous_model(d, v_m, o, dynamic=dyn)
     uin = o.stack([steer, nzm])
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
+    if adapts(d):
+        q = q * (_col(1.0 - _adapted_mask(d), o) + _col(_adapted_mask(d), o) * zs.qscale)
+    if nz.q_yaw_rate_held > 0:
+        # the lateral model held: nothing but the gyro says how the yaw rate moves (a spin on the spot
+        # goes to the yaw rate, not the bias)
+        e_r = np.eye(n)[ir]
+        q = q + _col(e_r, o) * ((1.0 - dyn) * o.fmax(nz.q_yaw_rate_held - q[ir], 0.0))
     kin = None
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
-        A, B, q, kin, dev_lag = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.dev, o)
+        A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
     E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
@@ -268,11 +290,15 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
                 (o.fabs(g.ay) < nz.bias_cusum_ay_max)
             P, cusum, alarm = _bias_watch(d, zs.cusum, resid, accept * calm, relock, P, o)
         init = o.fmax(init, usable)
+        if adapts(d):
+            qscale = _adapt(d, zs.qscale, nis, accept * (init > 1.0 + nz.adapt_settle), o)
 
     else:  # no fix on this sample: nothing of the course update happens
         acc, first, usable = False, 0.0 * v, 0.0 * v
         accept, nis, K, S = 0.0 * v, 0.0 * v, gain, 0.0 * v
         resid = 0.0 * v
+        if adapts(d):
+            qscale = zs.qscale
         if watches_bias(d):
             cusum, alarm = zs.cusum, 0.0 * v
 
@@ -292,7 +318,9 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     if nb > 0:
         extra["buf"] = buf_next
     if d.kinematic:
-        extra["dev"] = dev_lag
+        extra["kin"] = kin_state
+    if adapts(d):
+        extra["qscale"] = qscale
     # init: 0 until the first usable fix, then 1 + the seconds since (capped)
     init = o.if_else(init > 0.5, o.fmin(init + dt, INIT_MAX), init)
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
@@ -310,29 +338,69 @@ def roll_compensation(p) -> float:
     in the road plane in steady cornering: the body rolls ``phi = m_s h a_y / (K_phi - m_s g h)``
     and the accelerometer reads ``a_y + g phi``, so ``a_y = reading / (1 + g m_s h / (K_phi - m_s g h))``
     (1 without the roll parameters)."""
+    return 1.0 / (1.0 + G * static_roll_gain(p))
+
+
+def static_roll_gain(p) -> float:
+    """Steady-state roll per lateral acceleration [rad per m/s^2], ``m_s h / (K_phi - m_s g h)``
+    (0 without the roll parameters)."""
     if None in (p.sprung_mass, p.roll_arm, p.roll_stiffness):
-        return 1.0
+        return 0.0
     msh = p.sprung_mass * p.roll_arm
-    return 1.0 / (1.0 + G * msh / (p.roll_stiffness - msh * G))
+    return msh / (p.roll_stiffness - msh * G)
 
 
-def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, dev_lag, o):
+def _lateral_acceleration(d: FilterDesign, g, ks, o):
+    """The car's lateral acceleration in the road plane from the accelerometer, and the next roll
+    estimate: the reading less the offset learnt in straight driving (road bank, bias) is
+    ``a_y cos(phi) + g sin(phi)``. With a roll gyro (``roll_rate_ok``) ``phi`` is a complementary
+    filter, ``phi' = p + (phi_static - phi) / kinematic_roll_tau``, which follows the body's roll
+    dynamics (the static model alone misses up to 1.6 m/s^2 on the Vanagon's sine with dwell);
+    without it, the static roll ``phi_static = k c (reading - offset)``
+    (:func:`static_roll_gain`, :func:`roll_compensation`)."""
+    nz = d.noise
+    reading = g.ay - ks.ay_offset
+    static = static_roll_gain(d.params) * roll_compensation(d.params) * reading
+    if g.roll_rate_ok is None:
+        roll = static
+    else:
+        filt = ks.roll + g.dt * (g.roll_rate + (static - ks.roll) / nz.kinematic_roll_tau)
+        roll = g.roll_rate_ok * filt + (1.0 - g.roll_rate_ok) * static
+    return (reading - G * o.sin(roll)) / o.cos(roll), roll
+
+
+def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o):
     """The sideslip row where the tyres have left the linear model: ``beta' = a_y / v - r`` (kinematics:
-    no tyre model), blended in with the weight ``w`` from the measured (roll-compensated) lateral
-    acceleration's departure from the linear model's at the current estimate,
-    ``a_model = v (beta'_model + r)``, through a first-order lag of ``kinematic_dev_tau`` (``dev_lag``,
-    the state): ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``.
+    no tyre model), blended in with the weight ``w`` from the measured lateral acceleration's
+    (:func:`_lateral_acceleration`: roll and road bank compensated) departure from the linear model's
+    at the current estimate, ``a_model = v (beta'_model + r)``, through a first-order lag of
+    ``kinematic_dev_tau``: ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``; and
+    only while the lateral acceleration's peak-held magnitude is above ``kinematic_ay_quiet``.
     The row becomes ``(1 - w) row_model + w (a_y / v - r)``, its process noise
     ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
-    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins). Returns ``(A, B, q, kinematic drive, dev_lag_next)``."""
+    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins).
+    Returns ``(A, B, q, kinematic drive, next state per KINEMATIC)``."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
-    ay = g.ay * roll_compensation(d.params)
+    ks = KINEMATIC.unpack(kin_state)
+    ay, roll = _lateral_acceleration(d, g, ks, o)
     a_model = v_m * (_dot(_col([A[ib, j] for j in range(n)], o), x, o) + B[ib, 0] * uin[0] + B[ib, 1] * uin[1] + x[ir])
-    dev = dev_lag + (o.fabs(ay - a_model) - dev_lag) * o.fmin(g.dt / d.noise.kinematic_dev_tau, 1.0)
+    dev = ks.dev + (o.fabs(ay - a_model) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
+    # peak hold with an exponential decay: rises with |a_y| at once, falls with kinematic_quiet_tau
+    level = o.fmax(o.fabs(ay), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
     w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
+    # no tyre saturates while the car hardly accelerates sideways: the path lets go however far the
+    # estimate's model departs (a sideslip error left by a slide would otherwise hold it on)
+    w = w * o.fmin(o.fmax(level / nz.kinematic_ay_quiet - 1.0, 0.0), 1.0)
     if g.ay_ok is not None:
         w = w * g.ay_ok
+    # straight driving on the model (path off, yaw rate near zero): what the accelerometer reads is
+    # the road's bank and its own bias; learnt through a lag
+    straight = (o.fabs(g.yaw_rate - x[d.index("gyro_bias")]) < nz.kinematic_straight_rate) * (w <= 0.0) * dyn
+    if g.ay_ok is not None:
+        straight = straight * g.ay_ok
+    offset = ks.ay_offset + straight * (g.ay - G * o.sin(roll) - ks.ay_offset) * o.fmin(
+        g.dt / nz.kinematic_offset_tau, 1.0)
     keep = 1.0 - w
     if o is not CASADI:
         A, B = A.copy(), B.copy()
@@ -347,7 +415,24 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, dev_lag, o):
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
-    return A, B, q, kin, dev
+    return A, B, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
+
+
+def _adapted_mask(d: FilterDesign) -> np.ndarray:
+    """1 on the states whose process noise the adaptive scale multiplies: the lateral model's
+    (sideslip, yaw rate, disturbances), not the heading's or the gyro bias's."""
+    return np.array([1.0 if s in ("beta", "yaw_rate", "d1", "d2") else 0.0 for s in d.states])
+
+
+def _adapt(d: FilterDesign, qscale, nis, accept, o):
+    """Covariance matching on one scale factor of the process noise: at every accepted fix
+    ``log s <- log s + adapt_rate (min(NIS, adapt_nis_cap) - 1)``, ``s`` kept within
+    ``[adapt_min, adapt_max]``. With a consistent filter the NIS averages 1 and the scale only
+    wanders; innovations larger than predicted (a model error, a manoeuvre the model gets wrong)
+    raise it within a few fixes, smaller ones lower it over tens of fixes."""
+    nz = d.noise
+    step = o.exp(nz.adapt_rate * accept * (o.fmin(nis, nz.adapt_nis_cap) - 1.0))
+    return o.fmin(o.fmax(qscale * step, nz.adapt_min), nz.adapt_max)
 
 
 def _bias_watch(d: FilterDesign, cusum, nu, accept, relock, P, o):

@@ -35,7 +35,7 @@ from . import kalman
 from .runner import compiled_filter, initial_state, log_inputs
 from .spec import LOOP_METHODS, FilterDesign, NoiseSettings
 
-METHODS = LOOP_METHODS + ("mbkf", "dakf-kinematic")
+METHODS = LOOP_METHODS + ("mbkf",)
 """The methods whose noise :func:`fit_noise` fits: those that run the Kalman step of
 :mod:`toolkit.estimation.kalman` (its ``gyro_var`` and ``course_var`` outputs)."""
 BOUND = 4.0
@@ -134,6 +134,9 @@ def fit_noise(d: FilterDesign, log, parameters: tuple[str, ...] | None = None, *
     if t[-1] - t[0] <= warmup + 1.0:
         raise DataError(f"the log is {t[-1] - t[0]:.1f} s long; the fit needs more than the {warmup:g} s warm-up")
     U = log_inputs(cols, d.dt_nominal)
+    # the intensities themselves are fitted: the innovation-adaptive scale, which would move them
+    # while the fit does, is off in the fitted filter (and stays as it was in the written noise)
+    d = dataclasses.replace(d, noise=dataclasses.replace(d.noise, adapt_rate=0.0))
     cf = compiled_filter(d, "auto", params)
     z0 = initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0]))
     start = np.array([float(getattr(d.noise, p)) for p in params])

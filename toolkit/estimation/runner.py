@@ -182,6 +182,7 @@ def inputs_from_columns(t, speed, steer, yaw_rate, gps_course, *, yaw_moment=Non
     put("gps_speed", gps_speed)
     put_with_validity("heading", "heading_valid", gps_heading)
     put("roll_rate", roll_rate)
+    col["roll_rate_ok"][:] = 0.0 if roll_rate is None else np.isfinite(np.asarray(roll_rate, float))
     put_with_validity("gps_roll", "gps_roll_valid", gps_roll)
     return U
 
@@ -216,7 +217,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
     cf = compiled_filter(d, backend)
     Y = cf.run(U, initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0])))
     out = kalman.OUTPUTS.columns(Y)
-    if d.method == "double-layer":  # layer 2 on layer 1's (amrkf's) sideslip and yaw rate
+    if d.method == "double-layer":  # layer 2 on layer 1's (dakf's) sideslip and yaw rate
         from .double_layer import layer2
         l2 = layer2(d.params, cols["t"], get("ax", np.zeros(len(U))), get("ay", np.zeros(len(U))), out["yaw_rate"],
                     get("roll_rate", np.zeros(len(U))), get("gps_speed", np.full(len(U), np.nan)), out["beta"],

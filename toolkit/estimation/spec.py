@@ -17,9 +17,15 @@ Methods
     (they can no longer hold a sideslip offset against a heading offset forever),
     a gyro-bias random walk, a zero-yaw-rate pseudo-measurement at standstill,
     course noise from HDOP and 1/speed, fixes with < 4 satellites dropped, and
-    chi-square innovation gating.
+    chi-square innovation gating. On logs (:func:`estimation_noise`): the sensor
+    model's noise, process noise scaled by the course innovations, and the
+    kinematic sideslip path at the limit (where the measured lateral acceleration
+    leaves the linear model's, ``beta' = a_y / v - r`` takes over). In the ECU
+    (``control=True``): :data:`CONTROL_NOISE`, neither of the two.
 ``amrkf``
-    ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29).
+    ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29). Between fixes it applies
+    the last fix's gain again to the predicted residual, ``(1 - h K) / (h K)`` times the fix's own
+    correction in all: the smaller the gain (consistent noise), the larger the over-correction.
 ``kf``
     Three states (beta, r, psi), no disturbances, no bias (seed 001 / 003's "KF").
 ``kf-bias``
@@ -39,18 +45,14 @@ Methods
     heading, total roll (bank + body roll) and the three sensor biases from the lateral
     accelerometer, yaw and roll gyros, GPS heading, roll and velocity direction.
 ``double-layer``
-    Seed 004's double-layer estimator: layer 1 is ``amrkf`` (the advanced multi-rate filter),
-    layer 2 (:mod:`toolkit.estimation.double_layer`) adds vx, vy and the roll angle from the
-    accelerometers, the roll rate and pseudo-velocities from layer 1's sideslip.
+    Seed 004's double-layer estimator: layer 1 is ``dakf`` (004 uses ``amrkf``, whose inter-sample
+    residual prediction over-corrects with evstab's noise), layer 2
+    (:mod:`toolkit.estimation.double_layer`) adds vx, vy and the roll angle from the accelerometers,
+    the roll rate and pseudo-velocities from layer 1's sideslip.
 ``kkf``
     Seed 001's kinematic filter (:mod:`toolkit.estimation.kkf`): heading and gyro bias from
     the integrated gyro and the course, the course update switched off while turning;
     sideslip = course - heading at each fix taken while turning.
-``dakf-kinematic``
-    ``dakf`` with the kinematic sideslip path at the limit (:func:`toolkit.estimation.kalman.step`):
-    where the measured lateral acceleration leaves the linear model's for longer than a delayed
-    course fix can make it, ``beta' = a_y / v - r`` takes over. Not the default yet: the closed loop
-    has not been judged with it.
 """
 
 from __future__ import annotations
@@ -63,14 +65,15 @@ import numpy as np
 from evstab.plants import VehicleParams
 from evstab.plants.bicycle import lateral_coefficients
 from evstab.plants.errors import ModelError
+from evstab.plants.sensors import SensorConfig
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 """Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of
 :mod:`toolkit.estimation.kalman`."""
-METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer", "dakf-kinematic")
+METHODS = LOOP_METHODS + ("lob", "mbkf", "kkf", "two-stage", "dual-antenna", "double-layer")
 METHOD_COLUMNS = {"lob": ("ay",), "two-stage": ("ax", "ay", "gps_speed", "gps_heading"),
                   "dual-antenna": ("ay", "roll_rate", "gps_speed", "gps_heading"),
-                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed"), "dakf-kinematic": ("ay",)}
+                  "double-layer": ("ax", "ay", "roll_rate", "gps_speed")}
 """Drive-log columns a method needs beyond the schema's required ones (``dual-antenna`` uses a third
 antenna's ``gps_roll`` when the log has it, and runs on the heading alone, the common installation,
 when it does not)."""
@@ -90,6 +93,9 @@ class NoiseSettings:
     q_beta: float = 1.4e-5
     """[rad^2/s^3 ... per unit of beta'] white noise on beta'."""
     q_yaw_rate: float = 0.023
+    q_yaw_rate_held: float = 0.0
+    """[rad^2/s^3] The yaw rate's random walk below ``min_speed``, where the lateral model is held, if
+    larger than ``q_yaw_rate``."""
     q_yaw: float = 1e-8
     q_d1: float = 0.02
     q_d2: float = 0.01
@@ -144,6 +150,20 @@ class NoiseSettings:
     kinematic_dev_tau: float = 0.15
     """[s] The departure counts through a first-order lag of this time constant: a slide sustains it, a
     delayed course fix that moves the estimate for a sample does not."""
+    kinematic_ay_quiet: float = 1.0
+    """[m/s^2] Below this lagged lateral acceleration the kinematic path is off, fully on from twice it
+    (no tyre is saturated while the car hardly accelerates sideways)."""
+    kinematic_quiet_tau: float = 0.5
+    """[s] Time constant of the lag on the lateral acceleration's magnitude that ``kinematic_ay_quiet``
+    reads (a slide's ``a_y`` crosses zero between directions; the lag holds it over the crossing)."""
+    kinematic_roll_tau: float = 1.0
+    """[s] Time constant with which the kinematic path's roll estimate leans on the static roll model
+    against the integrated roll gyro (logs with ``roll_rate``)."""
+    kinematic_offset_tau: float = 3.0
+    """[s] Lag with which the kinematic path learns the lateral accelerometer's offset (road bank, bias)
+    in straight driving."""
+    kinematic_straight_rate: float = 0.02
+    """[rad/s] Straight driving, for that offset: the yaw rate (gyro less its bias) below this."""
     kinematic_settle: float = 2.0
     """[s] The kinematic path waits this long after the first fix (the estimate settling)."""
     q_beta_kinematic: float = 0.02
@@ -152,6 +172,19 @@ class NoiseSettings:
     q_yaw_rate_kinematic: float = 1.0
     """[rad^2/s^3] white noise on the yaw acceleration where the kinematic path has taken over (the yaw
     rate a random walk the gyro pins)."""
+    adapt_rate: float = 0.0
+    """Innovation-adaptive process noise (``dakf``, ``amrkf``; 0 = off): the lateral states' process
+    noise is multiplied by a scale ``s`` that every accepted course fix moves by
+    ``log s += adapt_rate (min(NIS, adapt_nis_cap) - 1)`` (:func:`toolkit.estimation.kalman.step`)."""
+    adapt_min: float = 0.3
+    """Lower bound of the adaptive scale."""
+    adapt_max: float = 30.0
+    """Upper bound of the adaptive scale."""
+    adapt_nis_cap: float = 9.0
+    """NIS above this counts as this much in the adaptation (one outlier moves the scale by at most
+    ``e^(adapt_rate (cap - 1))``)."""
+    adapt_settle: float = 2.0
+    """[s] The scale starts to adapt this long after the first fix."""
     gps_min_speed: float = 1.0
     """Course fixes below this ground speed [m/s] are not used."""
     gate: float = CHI2_1DOF_999
@@ -177,6 +210,11 @@ class NoiseSettings:
             v = getattr(self, f.name)
             if not (np.isfinite(v) and v >= 0):
                 raise ModelError(f"noise setting '{f.name}' must be a finite number >= 0, got {v!r}")
+        if self.adapt_min <= 0:
+            raise ModelError(f"noise setting 'adapt_min' must be > 0, got {self.adapt_min!r}")
+        if self.adapt_max < self.adapt_min:
+            raise ModelError(f"noise setting 'adapt_max' ({self.adapt_max!r}) must be >= 'adapt_min' "
+                             f"({self.adapt_min!r})")
         if self.disturbance_tau <= 0:
             raise ModelError(f"noise setting 'disturbance_tau' must be > 0 s, got {self.disturbance_tau!r}")
 
@@ -222,26 +260,52 @@ class FilterDesign:
         return np.diag([sd[s] ** 2 for s in self.states])
 
 
+CONTROL_NOISE = NoiseSettings()
+"""The noise of the ECU's filter (the stability loop, the design job, firmware): cautious process noise
+and fast disturbance states, the observer the 2-DOF law's disturbance rejection was designed and judged
+with. On evstab's own logs its course innovations are smaller than it predicts (mean NIS 0.1-0.3)."""
+KINEMATIC_METHODS = ("dakf", "amrkf", "double-layer")
+"""The methods that estimate on logs with :func:`estimation_noise` and the kinematic sideslip path."""
+
+
+def estimation_noise(sensors=None) -> NoiseSettings:
+    """The noise of ``dakf``, ``amrkf`` and ``double-layer`` on logs: the gyro and GPS noise the sensor
+    model generates (``sensors``, a :class:`plants.sensors.SensorConfig`; default its defaults), process
+    noise that keeps the course innovations consistent where the model is right (mean NIS inside its
+    interval on evstab's own logs, every bundled vehicle), and innovation-adaptive scaling of it
+    (``adapt_rate``) where the model is wrong."""
+    s = sensors if sensors is not None else SensorConfig()
+    return NoiseSettings(gyro_std=s.gyro_noise, gps_velocity_std=s.gps_velocity_noise, q_beta=1.4e-7,
+                         q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=8e-5, q_d2=4e-5, q_bias=5e-8,
+                         adapt_rate=0.3)
+
+
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
                   latency: float = 0.0, antenna_x: float = 0.0, dt: float = 1e-3,
-                  nominal: bool = True) -> FilterDesign:
-    """Design a filter for ``params`` (its nominal version unless ``nominal=False``)."""
+                  nominal: bool = True, control: bool = False) -> FilterDesign:
+    """Design a filter for ``params`` (its nominal version unless ``nominal=False``).
+
+    ``control``: the ECU's filter (the stability loop, the design job, firmware export):
+    :data:`CONTROL_NOISE` unless ``noise`` is given, and no kinematic path. Otherwise
+    the methods of :data:`KINEMATIC_METHODS` estimate with :func:`estimation_noise` (unless
+    ``noise`` is given) and the kinematic sideslip path."""
     if method not in METHODS:
         raise ModelError(f"unknown estimation method '{method}'; known: {', '.join(METHODS)}")
     if not (np.isfinite(latency) and 0 <= latency <= 0.5):
         raise ModelError(f"GPS latency must be between 0 and 0.5 s, got {latency!r}")
     p = params.as_nominal() if nominal else params
+    kinematic = method in KINEMATIC_METHODS and not control
     if noise is None:
         # mbkf: the steer input carries the whole model uncertainty (001), no white noise on beta', r'
-        noise = NoiseSettings(q_beta=0.0, q_yaw_rate=0.0) if method == "mbkf" else NoiseSettings()
+        noise = NoiseSettings(q_beta=0.0, q_yaw_rate=0.0) if method == "mbkf" else (
+            estimation_noise() if kinematic else CONTROL_NOISE)
     lat = ("beta", "yaw_rate", "yaw")
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
                             False, latency, antenna_x, dt)
-    if method in ("dakf", "amrkf", "double-layer", "dakf-kinematic"):
+    if method in KINEMATIC_METHODS:
         return FilterDesign(method, lat + ("d1", "d2", "gyro_bias"), p, noise, "gauss-markov", True, True, True,
-                            True, method in ("amrkf", "double-layer"), latency, antenna_x, dt,
-                            kinematic=method == "dakf-kinematic")
+                            True, method == "amrkf", latency, antenna_x, dt, kinematic=kinematic)
     if method == "kf":
         return FilterDesign(method, lat, p, noise, None, False, False, False, False, False, latency, antenna_x, dt)
     if method == "mbkf":

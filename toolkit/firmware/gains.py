@@ -136,7 +136,8 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
         field = "estimator"
         e = doc["estimator"]
         fd = design_filter(e["method"], params, NoiseSettings(**e["noise"]), latency=e["latency_s"],
-                           antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False)
+                           antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False,
+                           control=True)
         field = "schedule"
         s = doc["schedule"]
         sched = SpeedSchedule(tuple(float(v) for v in s["axis"]["values"]),
