@@ -151,11 +151,11 @@ class NoiseSettings:
     """[s] The departure counts through a first-order lag of this time constant: a slide sustains it, a
     delayed course fix that moves the estimate for a sample does not."""
     kinematic_ay_quiet: float = 1.0
-    """[m/s^2] Below this lagged lateral acceleration the kinematic path is off, fully on from twice it
-    (no tyre is saturated while the car hardly accelerates sideways)."""
+    """[m/s^2] Below this peak-held lateral acceleration the kinematic path is off, and it may be fully on
+    from twice it (no tyre is saturated while the car hardly accelerates sideways)."""
     kinematic_quiet_tau: float = 0.5
-    """[s] Time constant of the lag on the lateral acceleration's magnitude that ``kinematic_ay_quiet``
-    reads (a slide's ``a_y`` crosses zero between directions; the lag holds it over the crossing)."""
+    """[s] Time constant with which that peak hold of ``|a_y|`` decays (a slide's ``a_y`` crosses zero
+    between directions; the hold keeps the path on over the crossing)."""
     kinematic_roll_tau: float = 1.0
     """[s] Time constant with which the kinematic path's roll estimate leans on the static roll model
     against the integrated roll gyro (logs with ``roll_rate``)."""
@@ -268,7 +268,7 @@ KINEMATIC_METHODS = ("dakf", "amrkf", "double-layer")
 """The methods that estimate on logs with :func:`estimation_noise` and the kinematic sideslip path."""
 
 
-def estimation_noise(sensors=None) -> NoiseSettings:
+def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     """The noise of ``dakf``, ``amrkf`` and ``double-layer`` on logs: the gyro and GPS noise the sensor
     model generates (``sensors``, a :class:`plants.sensors.SensorConfig`; default its defaults), process
     noise that keeps the course innovations consistent where the model is right (mean NIS inside its
