@@ -76,7 +76,7 @@ def test_estimate_writes_method_columns(tmp_path):
     flags = ["fault_gps_spike", "fault_gps_sats", "fault_gps_frozen", "fault_gps_time", "fault_gyro_stuck",
              "fault_gyro_bias", "fault_speed_dropout"]
     assert header == ["t", "beta", "yaw_rate", "yaw", "beta_std", "d1", "d2", "gyro_bias", "gps_used", "nis",
-                      "course_resid"] + flags
+                      "course_resid", "noise_scale"] + flags
     assert main(["estimate", str(log), "--vehicle", "micro-ev", "--method", "kf", "--out", str(est)]) == 0
     assert est.read_text().splitlines()[0] == ",".join(["t", "beta", "yaw_rate", "yaw", "beta_std", "gps_used",
                                                         "nis", "course_resid"] + flags)

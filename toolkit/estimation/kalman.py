@@ -82,6 +82,8 @@ OUTPUTS = Layout("filter outputs", [
     Signal("gyro_resid", "rad/s", "gyro innovation before its update"),
     Signal("gyro_var", "rad^2/s^2", "its predicted variance (h P h^T + r)"),
     Signal("course_var", "rad^2", "the course innovation's predicted variance (NaN without a usable fix)"),
+    Signal("noise_scale", "-", "the process noise's innovation-adaptive scale (1 where the model holds; at its "
+           "bound, the model is wrong)"),
     Signal("vx", "m/s", "body longitudinal velocity"),
     Signal("vy", "m/s", "body lateral velocity"),
     Signal("roll", "rad", "roll angle"),
@@ -326,6 +328,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
     nan = float("nan")
     est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
+    if adapts(d):
+        est["noise_scale"] = qscale
     y = outputs(o, v, beta=x[ib], yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
                 gps_used=o.fmax(accept, first), nis=o.if_else(usable > 0.5, nis, nan),
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
