@@ -43,9 +43,9 @@ def test_bad_bounds_are_refused_by_name():
 
 def test_the_scale_stays_low_where_the_model_holds_and_rises_where_it_does_not():
     # compact-ev with its own nominal model, the consistency study's lane change (60 km/h, 3 m/s^2):
-    # the scale's median after the settling is below 1 (measured 0.65); micro-ev, whose nominal
+    # the scale's median after the settling is below 1 (measured 0.43); micro-ev, whose nominal
     # stiffness is 10000 N/rad against the true 7000 (seed 003), in a 25 km/h lane change: the
-    # innovations are larger than predicted and the scale reaches its bound (measured 30, median 1.3)
+    # innovations are larger than predicted and the scale reaches its bound (measured 30, median 18)
     p = load_vehicle("compact-ev")
     log = simulate(p, "two-track", drives(p)["lane change"], sensors=SensorConfig(gyro_bias=0.002),
                    seed=1).log_columns()

@@ -57,6 +57,9 @@ class Layer2Noise:
     """[rad/s] roll gyro noise per sample."""
     speed_std: float = 0.04
     """[m/s] GPS ground-speed noise per fix."""
+    beta_std_min: float = np.radians(0.2)
+    """[rad] The pseudo-velocities' sideslip noise is layer 1's ``beta_std``, but at least this: a linear
+    model's spread does not hold its own model error (a nominal stiffness 43 % high, say)."""
 
 
 def _kf_update(x, P, h_idx, z, r):
@@ -70,8 +73,9 @@ def layer2(p: VehicleParams, t, ax, ay, yaw_rate, roll_rate, gps_speed, beta, be
     """Run layer 2 over a log; ``gps_speed`` NaN between fixes; ``beta`` from layer 1 (rad)."""
     t, ax, ay, r, pr, V, b = (np.asarray(a, float) for a in (t, ax, ay, yaw_rate, roll_rate, gps_speed, beta))
     n = len(t)
-    bs = np.full(n, np.radians(0.2)) if beta_std is None else np.nan_to_num(np.asarray(beta_std, float),
-                                                                              nan=np.radians(0.2))
+    floor = noise.beta_std_min
+    bs = np.full(n, floor) if beta_std is None else np.fmax(np.nan_to_num(np.asarray(beta_std, float), nan=floor),
+                                                           floor)
     ix, cx, kx = p.roll_inertia, p.roll_damping, p.roll_stiffness
     msh = p.sprung_mass * p.roll_arm
     x = np.zeros(5)

@@ -108,6 +108,10 @@ class NoiseSettings:
     """Yaw rate [rad/s] at which the disturbance noise doubles the floor (large = off)."""
     disturbance_tau: float = 10.0
     """Correlation time of the Gauss-Markov disturbances [s] (``dakf``, ``amrkf``)."""
+    d1_init_std: float = 0.05
+    """[rad/s] Standard deviation of ``d1`` at the start (the initial covariance)."""
+    d2_init_std: float = 0.5
+    """[rad/s^2] Standard deviation of ``d2`` at the start."""
     gyro_std: float = 0.004
     """Gyro white-noise standard deviation per sample [rad/s]."""
     course_std: float = np.deg2rad(0.15)
@@ -256,7 +260,8 @@ class FilterDesign:
         return int(round(self.latency / self.dt_nominal))
 
     def initial_covariance(self) -> np.ndarray:
-        sd = {"beta": np.deg2rad(2.0), "yaw_rate": 0.05, "yaw": np.pi, "d1": 0.05, "d2": 0.5, "gyro_bias": 0.01}
+        sd = {"beta": np.deg2rad(2.0), "yaw_rate": 0.05, "yaw": np.pi, "d1": self.noise.d1_init_std,
+              "d2": self.noise.d2_init_std, "gyro_bias": 0.01}
         return np.diag([sd[s] ** 2 for s in self.states])
 
 
@@ -275,8 +280,12 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     interval on evstab's own logs, every bundled vehicle), and innovation-adaptive scaling of it
     (``adapt_rate``) where the model is wrong."""
     s = sensors if sensors is not None else SensorConfig()
+    q_d1, q_d2, tau = 8e-5, 4e-5, NoiseSettings.disturbance_tau
+    # the disturbances start with the stationary spread of their Gauss-Markov processes, q tau / 2: a wider
+    # prior lets the first fixes' heading drift (the bias not yet learnt) into them, and with them into beta
     return NoiseSettings(gyro_std=s.gyro_noise, gps_velocity_std=s.gps_velocity_noise, q_beta=1.4e-7,
-                         q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=8e-5, q_d2=4e-5, q_bias=5e-8,
+                         q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=q_d1, q_d2=q_d2, q_bias=5e-8,
+                         d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
                          adapt_rate=0.3)
 
 
