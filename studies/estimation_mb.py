@@ -40,9 +40,10 @@ from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
 
 CARS = (1, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "kkf", "double-layer", "dakf (ECU)")
-"""The methods of the table; ``dakf (ECU)`` is the ECU's filter (``design_filter(..., control=True)``:
-the stability loop's noise, no kinematic path)."""
+METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "kf", "mbkf", "lob", "kkf", "two-stage",
+           "dual-antenna", "dakf-paper")
+"""Every estimator (the logs have every column each needs); ``dakf (ECU)`` is the ECU's filter
+(``design_filter(..., control=True)``: the stability loop's noise, no kinematic path)."""
 START = 2.0
 DEG = np.pi / 180
 SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 45.0}
