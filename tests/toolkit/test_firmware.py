@@ -13,6 +13,7 @@ import json
 import shutil
 import subprocess
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -29,7 +30,7 @@ from evstab.toolkit.cli import main
 from evstab.toolkit.compiled import compiler
 from evstab.toolkit.design_job import basic_design_document
 from evstab.toolkit.estimation import design_filter
-from evstab.toolkit.estimation.spec import NoiseSettings
+from evstab.toolkit.estimation.spec import NoiseSettings, estimation_noise
 from evstab.toolkit.firmware import gains as gains_mod
 from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
 from evstab.toolkit.firmware.export import ecu_from_design, gain_set, render
@@ -430,6 +431,38 @@ def test_ecu_design_rejects_what_firmware_cannot_run():
     p = load_vehicle("compact-ev").as_nominal()
     with pytest.raises(ValueError, match="Kalman-filter methods"):
         EcuDesign.from_designs(design_filter("lob", p), TwoDofDesign(p))
+    with pytest.raises(ValueError, match="without the kinematic sideslip path"):  # the estimation variant
+        EcuDesign.from_designs(design_filter("dakf", p), TwoDofDesign(p))
+
+
+@needs_cc
+def test_an_ecu_with_the_adaptive_noise_exports_c_equal_to_its_replay(closed_loop, tmp_path):
+    """The estimation noise in the ECU (a noise file fitted to a log and given to `evstab design --noise`
+    brings it): the adaptive scale is filter state, the disturbances' initial spread is the
+    noise's, and both reach the C. Compared with the replay over the closed-loop log (float64), and the
+    scale changes the estimate (else the test would not see it travel)."""
+    p = load_vehicle("compact-ev")
+    ctl = TwoDofDesign(p.as_nominal())
+    gps = {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}
+    dirs = {}
+    for name, noise in (("adaptive", estimation_noise()), ("fixed", replace(estimation_noise(), adapt_rate=0.0))):
+        doc = basic_design_document(p, design_filter("dakf", p, noise, control=True), ctl, gps, "test")
+        dirs[name] = tmp_path / name
+        dirs[name].mkdir()
+        (dirs[name] / "design.json").write_text(json.dumps(doc, indent=2))
+    out = tmp_path / "fw"
+    assert main(["export", str(dirs["adaptive"]), "--format", "c", "--out", str(out)]) == 0
+    _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),
+          str(out / "evstab_replay.c"), "-lm"])
+    _, log_path = closed_loop
+    rep, inputs = _replay_cli(dirs["adaptive"], log_path, tmp_path)
+    Y = _harness(out / "replay", inputs)
+    for i, name in enumerate(OUTPUTS):
+        np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
+    other = tmp_path / "fixed_replay"
+    other.mkdir()
+    fixed, _ = _replay_cli(dirs["fixed"], log_path, other)
+    assert np.abs(fixed["beta"] - rep["beta"]).max() > 1e-5  # rad: the scale moved the estimate
 
 
 def test_replay_and_estimate_refuse_bad_input_and_write_nothing(tmp_path, capsys, design_dir, closed_loop):

@@ -163,6 +163,10 @@ class EcuDesign:
         if self.filter.method not in FIRMWARE_METHODS:
             raise ModelError(f"firmware export supports the Kalman-filter methods ({', '.join(FIRMWARE_METHODS)}), "
                              f"not '{self.filter.method}'")
+        if self.filter.kinematic:
+            raise ModelError(f"the ECU runs '{self.filter.method}' without the kinematic sideslip path (the closed "
+                             "loop has not been judged with it, and design files do not carry it): design the filter "
+                             "with design_filter(..., control=True)")
         if not isinstance(self.controller.schedule, SpeedSchedule) or self.filter.schedule != self.controller.schedule:
             raise ModelError("the ECU's filter and controller must carry the same speed schedule")
         if not np.isfinite(self.controller.nz_max):
