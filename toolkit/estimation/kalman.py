@@ -42,7 +42,7 @@ from evstab.plants import G
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.signals import Layout, Signal
 from .core import column as _col, diag as _diag, dot as _dot, predict_delta, scalar_update
-from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
+from .spec import LATERAL_STATES, FilterDesign, continuous_model, gyro_row, process_noise_diag
 
 INPUTS = Layout("filter inputs", [
     Signal("dt", "s", "time since the previous sample"),
@@ -204,7 +204,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     uin = o.stack([steer, nzm])
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
     if adapts(d):
-        q = q * (_col(1.0 - _adapted_mask(d), o) + _col(_adapted_mask(d), o) * zs.qscale)
+        scaled = np.array([1.0 if s in LATERAL_STATES else 0.0 for s in d.states])
+        q = q * (_col(1.0 - scaled, o) + _col(scaled, o) * zs.qscale)
     if nz.q_yaw_rate_held > 0:
         # the lateral model held: nothing but the gyro says how the yaw rate moves (a spin on the spot
         # goes to the yaw rate, not the bias)
@@ -420,12 +421,6 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
     return A, B, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
-
-
-def _adapted_mask(d: FilterDesign) -> np.ndarray:
-    """1 on the states whose process noise the adaptive scale multiplies: the lateral model's
-    (sideslip, yaw rate, disturbances), not the heading's or the gyro bias's."""
-    return np.array([1.0 if s in ("beta", "yaw_rate", "d1", "d2") else 0.0 for s in d.states])
 
 
 def _adapt(d: FilterDesign, qscale, nis, accept, o):

@@ -33,7 +33,7 @@ from evstab.plants.errors import DataError, ParameterError
 
 from . import kalman
 from .runner import compiled_filter, initial_state, log_inputs
-from .spec import LOOP_METHODS, FilterDesign, NoiseSettings
+from .spec import LATERAL_STATES, LOOP_METHODS, FilterDesign, NoiseSettings
 
 METHODS = LOOP_METHODS + ("mbkf",)
 """The methods whose noise :func:`fit_noise` fits: those that run the Kalman step of
@@ -48,7 +48,7 @@ def default_parameters(d: FilterDesign) -> tuple[str, ...]:
     """What :func:`fit_noise` fits by default: the sensor noises and the process noise of the
     lateral and disturbance states (the yaw angle has none to speak of, the bias walk is too slow
     to identify on minutes of log)."""
-    q = tuple(f"q_{s}" for s in d.states if s in ("beta", "yaw_rate", "d1", "d2"))
+    q = tuple(f"q_{s}" for s in d.states if s in LATERAL_STATES)
     return SENSOR + q if d.hdop_noise else ("gyro_std",) + q
 
 

@@ -269,6 +269,9 @@ CONTROL_NOISE = NoiseSettings()
 """The noise of the ECU's filter (the stability loop, the design job, firmware): cautious process noise
 and fast disturbance states, the observer the 2-DOF law's disturbance rejection was designed and judged
 with. On evstab's own logs its course innovations are smaller than it predicts (mean NIS 0.1-0.3)."""
+LATERAL_STATES = ("beta", "yaw_rate", "d1", "d2")
+"""The lateral model's states: the process noise the noise fit fits and the adaptive scale multiplies
+(not the heading's or the gyro bias's)."""
 KINEMATIC_METHODS = ("dakf", "amrkf", "double-layer")
 """The methods that estimate on logs with :func:`estimation_noise` and the kinematic sideslip path."""
 
