@@ -14,8 +14,10 @@ rounding; ``a12 = -1 + c x^2`` and the reference gains carry the interpolation e
 
 With numbers the segment is looked up (the exported C does the same); with casadi
 symbols the same interpolation is written as a sum over the grid's hat functions,
-``w_i = max(0, min((x - x_{i-1}) / (x_i - x_{i-1}), (x_{i+1} - x) / (x_{i+1} - x_i)))``.
-Any strictly increasing axis works.
+``w_i = max(0, min((x - x_{i-1}) / (x_i - x_{i-1}), (x_{i+1} - x) / (x_{i+1} - x_i)))``,
+inside one casadi function per table that a traced step calls (a ``never_inline`` call
+node): a lane kernel (:mod:`toolkit.lanes`) runs the segment lookup in its place, the
+firmware's arithmetic, instead of the 32-term sums. Any strictly increasing axis works.
 
 Notes
 -----
@@ -26,12 +28,14 @@ same arithmetic.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from evstab.plants import VehicleParams
-from evstab.plants.backend import NUMPY
+from evstab.plants.backend import LANE_INTRINSICS, NUMPY
 from evstab.plants.bicycle import lateral_coefficients, steady_state_gains
 from evstab.plants.errors import ModelError
 
@@ -101,6 +105,12 @@ class SpeedSchedule:
             t = (x - ax[i]) / (ax[i + 1] - ax[i])
             tab = np.asarray(self.table)
             return tuple(tab[r, i] + t * (tab[r, i + 1] - tab[r, i]) for r in range(len(ROWS)))
+        out = _casadi_function(self)(v)
+        return tuple(out[r] for r in range(len(ROWS)))
+
+    def _hat_sums(self, v, o) -> tuple:
+        ax = np.asarray(self.inv_speed)
+        n = len(ax)
         x = o.fmin(o.fmax(1.0 / v, ax[0]), ax[n - 1])
         weights = []
         for i in range(n):
@@ -115,6 +125,31 @@ class SpeedSchedule:
                 acc = acc + weights[i] * row[i]
             out.append(acc)
         return tuple(out)
+
+    def lane_c(self, name: str) -> str:
+        """C of the segment lookup on lane vectors (``EV_INLINE void name(const vd* in, vd* out)``,
+        ``in[0]`` the speed): the numpy branch of :meth:`values` and the exported C, operation for
+        operation, with ``x = 1 / v`` clamped as the casadi branch does."""
+        n, nr = len(self.inv_speed), len(self.table)
+        ax = ", ".join(repr(float(a)) for a in self.inv_speed)
+        tab = ",\n        ".join(", ".join(repr(float(t)) for t in row) for row in self.table)
+        return f"""EV_INLINE void {name}(const vd* in, vd* out) {{
+    static const double ax[{n}] = {{{ax}}};
+    static const double tab[{nr}][{n}] = {{
+        {tab}}};
+    vd x = ev_fmin(ev_fmax(1.0 / in[0], ev_splat(ax[0])), ev_splat(ax[{n - 1}]));
+    vl i = (vl){{0}};
+    for (int j = 1; j < {n - 1}; j++) i -= (vl)(x >= ev_splat(ax[j]));
+    vd lo, hi;
+    for (int l = 0; l < EV_W; l++) {{ lo[l] = ax[i[l]]; hi[l] = ax[i[l] + 1]; }}
+    vd t = (x - lo) / (hi - lo);
+    for (int r = 0; r < {nr}; r++) {{
+        vd a, b;
+        for (int l = 0; l < EV_W; l++) {{ a[l] = tab[r][i[l]]; b[l] = tab[r][i[l] + 1]; }}
+        out[r] = a + t * (b - a);
+    }}
+}}
+"""
 
     def max_error(self, p: VehicleParams, points: int = 2000) -> dict:
         """Largest relative interpolation error of each row against the exact model between the grid's ends."""
@@ -141,3 +176,16 @@ class SpeedSchedule:
             raise ModelError(f"speed schedule: missing field {e}") from None
         except (TypeError, ValueError) as e:
             raise ModelError(f"speed schedule: {e}") from None
+
+
+@lru_cache(maxsize=64)
+def _casadi_function(sched: SpeedSchedule):
+    """The casadi function ``v -> rows`` of a table (the hat sums), called as a ``never_inline``
+    node; its lane-kernel form is registered under the same name."""
+    import casadi as ca
+    from evstab.plants.backend import CASADI
+    name = "evstab_schedule_" + hashlib.sha256(repr((sched.inv_speed, sched.table)).encode()).hexdigest()[:16]
+    v = ca.SX.sym("v")
+    fn = ca.Function(name, [v], [ca.vertcat(*sched._hat_sums(v, CASADI))], ["v"], ["rows"], {"never_inline": True})
+    LANE_INTRINSICS[name] = sched.lane_c(name)
+    return fn

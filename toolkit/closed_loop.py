@@ -14,8 +14,10 @@ One sample of the loop, written once for numpy and casadi:
 
 Everything that runs a loop runs this function: the simulator evaluates it sample by sample
 (numpy, or the compiled step when a path driver closes an outer loop around it), the compiled
-rollouts trace it once into a casadi function rolled out by ``mapaccum`` and compiled to C
-(sweeps, tuning, FMVSS 126, the soak run), and the stability analysis differentiates the same
+rollouts trace it once into a casadi function and compile that to a lane kernel
+(:mod:`toolkit.lanes`: many cases per call, the time loop in C) for sweeps, FMVSS 126 and the
+soak run, the tuning rolls it out by ``mapaccum`` and differentiates it, and the stability
+analysis differentiates the same
 trace (:meth:`LoopProgram.jacobian`, :func:`toolkit.stability.estimator_loop`).
 
 The driver stays outside the step: its road-wheel angle command is an input (``steer_driver``),
@@ -27,6 +29,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import functools
+import warnings
 from dataclasses import dataclass
 
 import casadi as ca
@@ -41,12 +44,14 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.disturbances import Disturbances, disturbance_profile
+from evstab.plants.errors import CompileError
 from evstab.plants.maneuvers import Maneuver
 from evstab.plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
 from evstab.plants.signals import Layout, Signal
 
 from .compiled import (CFunction, cache_key, compile_library, numeric_fields, param_vector, rk4_step, rk4_substeps,
                        symbolic_view, with_fields)
+from . import lanes as lanes_mod
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
 from .firmware.ecu import INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign
@@ -320,6 +325,9 @@ def _build(spec: LoopSpec):
     return step, chunk, (Z, U, pv, th, Zn)
 
 
+LANE_ROLES = lanes_mod.Roles(stepped=(1,))
+"""The loop step's inputs for a lane kernel: ``u`` changes every sample; ``p`` and ``theta`` per case."""
+
 _TEMPLATE = VehicleParams.__new__(VehicleParams)
 object.__setattr__(_TEMPLATE, "name", "loop")
 object.__setattr__(_TEMPLATE, "source", "")
@@ -328,9 +336,18 @@ _CACHE: dict = {}
 
 
 class LoopProgram:
-    """A loop for one :class:`LoopSpec`, traced and compiled; :meth:`run` takes everything that varies by case."""
+    """A loop for one :class:`LoopSpec`, traced and compiled; :meth:`run` takes everything that varies by case.
 
-    def __init__(self, spec: LoopSpec, compile: bool = True):
+    Compiled, the loop runs as a lane kernel (:mod:`toolkit.lanes`: :data:`lanes.WIDTH` cases per
+    vector instruction, the time loop in C); :meth:`run_batch` rolls many cases out in one call and
+    :meth:`run` is its one-case form. Where the kernel cannot be built, casadi's generated C of the
+    same step runs instead (``mapaccum`` over chunks of :data:`CHUNK` samples), and without a C
+    compiler casadi's virtual machine.
+    """
+
+    def __init__(self, spec: LoopSpec, compile: bool = True, lanes: bool = True):
+        """``compile``: build C (else casadi's virtual machine); ``lanes``: the lane kernel (else
+        casadi's generated C, the reference the kernel is checked against)."""
         self.spec = spec
         self.step, self.chunk, self._sym = _build(spec)
         self.model = get_plant(spec.plant)
@@ -338,13 +355,19 @@ class LoopProgram:
         self.names = spec.fields
         self.nin = n_inputs()
         self._jac = None
-        self.cf = self.cstep = None
-        if compile:
+        self.cf = self.cstep = self.lanes = None
+        if compile and lanes:
+            try:
+                self.lanes = lanes_mod.compile_rollout(self.step, cache_key("loop_lanes", spec, SLOTS, lanes_mod.WIDTH,
+                                                                             lanes_mod.machine_tag()), LANE_ROLES)
+            except CompileError as e:
+                warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
+        if compile and self.lanes is None:
             lib = compile_library([self.chunk, self.step], cache_key("loop", spec, CHUNK, SLOTS))
             if lib is not None:
                 dll = ctypes.CDLL(str(lib))
                 self.cf, self.cstep = CFunction(dll, "loop_chunk"), CFunction(dll, "loop_step")
-        self.backend = "c" if self.cf is not None else "casadi"
+        self.backend = "lanes" if self.lanes is not None else ("c" if self.cf is not None else "casadi")
 
     def with_spec(self, spec: LoopSpec) -> "LoopProgram":
         """The same compiled program, with ``spec`` (equal up to calibration) for its defaults."""
@@ -372,6 +395,11 @@ class LoopProgram:
         block by block; ``U``'s length must then be a multiple of :data:`CHUNK`)."""
         if final_state and U.shape[0] % CHUNK:
             raise LoopError(f"final_state needs a multiple of {CHUNK} samples, got {U.shape[0]}")
+        if self.lanes is not None:
+            out = self.run_batch(np.asarray(U, float)[None], np.asarray(z0, float)[None],
+                                 np.asarray(pv, float)[None], np.asarray(theta, float)[None], meas=meas,
+                                 final_state=final_state)
+            return tuple(a[0] for a in out)
         n, nin = U.shape
         n_pad = -(-n // CHUNK) * CHUNK
         Up = np.empty((n_pad, nin))
@@ -398,8 +426,34 @@ class LoopProgram:
         out = (Y[:n], E[:n]) + ((M[:n],) if meas else ())
         return out + (z,) if final_state else out
 
+    def run_batch(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, *, meas: bool = False,
+                  final_state: bool = False):
+        """:meth:`run` for many cases at once: ``U`` (cases, samples, inputs), ``z0`` (cases, states),
+        ``pv`` (cases, plant parameters), ``theta`` (cases, run-time parameters); returns Y, E[, M][, z]
+        with a leading cases axis. One call of the lane kernel; case by case on the other backends."""
+        U = np.asarray(U, float)
+        if U.ndim != 3 or U.shape[2] != self.nin:
+            raise LoopError(f"run_batch: U must be (cases, samples, {self.nin}), got {U.shape}")
+        n_cases, n = U.shape[:2]
+        z0, pv, theta = (np.atleast_2d(np.asarray(a, float)) for a in (z0, pv, theta))
+        for what, a, k in (("z0", z0, sum(self.sizes)), ("pv", pv, len(self.names)),
+                           ("theta", theta, len(self.spec.theta_names))):
+            if a.shape != (n_cases, k):
+                raise LoopError(f"run_batch: {what} must be ({n_cases}, {k}), got {a.shape}")
+        if self.lanes is None:
+            runs = [self.run(U[c], z0[c], pv[c], theta[c], meas=meas, final_state=final_state) for c in range(n_cases)]
+            return tuple(np.stack([r[i] for r in runs]) for i in range(len(runs[0]))) if runs else ()
+        z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, keep=(1, 2, 3) if meas else (1, 2))
+        out = (Y, E) + ((M,) if meas else ())
+        return out + (z_end,) if final_state else out
+
     def step_once(self, z, u, pv, theta):
         """One sample through the compiled step (casadi's VM without a compiler): (z_next, y, e, m)."""
+        if self.lanes is not None:
+            z_end, outs = self.lanes(np.asarray(z, float)[None], [np.asarray(u, float)[None, None],
+                                                                  np.asarray(pv, float)[None],
+                                                                  np.asarray(theta, float)[None]], 1)
+            return (z_end[0],) + tuple(a[0, 0] for a in outs)  # one case, one sample
         if self.cstep is not None:
             outs = [np.empty(sum(self.sizes)), np.empty(len(TRUTH)), np.empty(len(EXTRA)), np.empty(len(MEAS))]
             self.cstep([np.ascontiguousarray(z, float), np.ascontiguousarray(u, float), pv, theta], outs)
@@ -503,6 +557,9 @@ def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, distu
     return U, loop_initial_state(spec, x0, params, maneuver.speed, W[:, 0]), param_vector(params, names)
 
 
+_ECU_START: dict = {}
+
+
 def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, w0) -> np.ndarray:
     """The loop state at the start: plant ``x0``, the ECU's initial state, nothing applied, the
     GPS slots holding the first sample's truth."""
@@ -510,7 +567,10 @@ def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, 
     lay = spec.state_layout
     z0 = lay.zeros()
     z0[lay.slot("plant")] = x0
-    z0[lay.slot("ecu")] = spec.ecu.initial_state()
+    z_ecu = _ECU_START.get(spec.ecu)
+    if z_ecu is None:  # the same for every run of an ECU (and a sweep starts thousands)
+        z_ecu = _ECU_START[spec.ecu] = spec.ecu.initial_state()
+    z0[lay.slot("ecu")] = z_ecu
     cmd0 = COMMANDS.pack(steer=0.0, yaw_moment=0.0, speed_ref=speed, drive_on=1.0, steer_rate=0.0)
     y0 = TRUTH.as_dict(np.asarray(model.h(x0, model.command_map(cmd0, x0, params), w0, params), float).ravel())
     first = SLOT.pack({k: y0[k] for k in SLOT})

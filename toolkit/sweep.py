@@ -215,9 +215,9 @@ def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bo
     return st.stable, 1.0 - st.margin
 
 
-def case_inputs(cfg: SweepConfig, case: Case):
+def case_inputs(cfg: SweepConfig, case: Case, prog=None):
     """Per manoeuvre: (U, z0, p) for the compiled loop, and the theta entries of the case."""
-    prog = program(cfg.spec())
+    prog = prog if prog is not None else program(cfg.spec())
     true = truth_params(cfg.plant, case.plant_params(cfg.nominal))
     sens = case.sensors(cfg.sensors)
     dist = Disturbances(friction=Friction(mu=case.mu))
@@ -225,52 +225,78 @@ def case_inputs(cfg: SweepConfig, case: Case):
     return prog, runs
 
 
+def _row(cfg: SweepConfig, case: Case, point: DesignPoint, rollouts: list, linear: bool) -> dict:
+    """The sweep's row of one case and design point from its rollouts ((Y, E) per manoeuvre)."""
+    nz_max = cfg.base_design().nz_max
+    terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
+    it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
+    for Y, E in rollouts:
+        finite = bool(np.all(np.isfinite(Y)) and np.all(np.isfinite(E)))
+        b = float(np.max(np.abs(Y[:, it]))) if finite else float("inf")
+        bounded = bounded and finite and b < SPIN_BETA
+        beta_max = max(beta_max, b)
+        tt = cost_terms(Y, E) if finite else {k: float("inf") for k in ("ms_est", "ms_r", "ms_b", "ms_nz")}
+        terms.append(tt)
+        costs.append(cost_value(tt, nz_max))
+        if finite:
+            nz_peak = max(nz_peak, float(np.max(np.abs(E[:, ie["yaw_moment"]]))))
+            steer_corr = max(steer_corr, float(np.max(np.abs(E[:, ie["steer"]] - E[:, ie["steer_driver"]]))))
+    lin_stable, rho = linear_verdict(cfg, case, point) if linear else (True, float("nan"))
+    mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
+    row = {f: getattr(case, f) for f in CASE_FIELDS}
+    row.update({
+        "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": bool(lin_stable),
+        "spectral_radius": rho, "bounded": bool(bounded),
+        "beta_rms_deg": float(np.degrees(np.sqrt(mean["ms_est"]))),
+        "yaw_rate_rms_err": float(np.sqrt(mean["ms_r"])),
+        "beta_track_rms_deg": float(np.degrees(np.sqrt(mean["ms_b"]))),
+        "yaw_moment_rms": float(np.sqrt(mean["ms_nz"])), "yaw_moment_peak_share": nz_peak / nz_max,
+        "steer_correction_max_deg": float(np.degrees(steer_corr)), "beta_max_deg": float(np.degrees(beta_max)),
+        "cost": float(np.mean(costs)),
+    })
+    return row
+
+
 def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint], *, linear: bool = True) -> list[dict]:
     """One row per design point: the case, the rollouts' metrics and (``linear``) the linear verdict."""
-    prog, runs = case_inputs(cfg, case)
-    nz_max = cfg.base_design().nz_max
-    rows = []
-    for point in points:
-        # the ECU is not told the road: its mu input is the design's "no road sensor" value
-        theta = prog.theta(**point.calibration(), gyro_bias=case.gyro_bias, gyro_scale_error=case.gyro_scale_error,
-                           mu_assumed=cfg.base_design().mu_max)
-        terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
-        it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
-        for U, z0, pv in runs:
-            Y, E = prog.run(U, z0, pv, theta)
-            finite = bool(np.all(np.isfinite(Y)) and np.all(np.isfinite(E)))
-            b = float(np.max(np.abs(Y[:, it]))) if finite else float("inf")
-            bounded = bounded and finite and b < SPIN_BETA
-            beta_max = max(beta_max, b)
-            tt = cost_terms(Y, E) if finite else {k: float("inf") for k in ("ms_est", "ms_r", "ms_b", "ms_nz")}
-            terms.append(tt)
-            costs.append(cost_value(tt, nz_max))
-            if finite:
-                nz_peak = max(nz_peak, float(np.max(np.abs(E[:, ie["yaw_moment"]]))))
-                steer_corr = max(steer_corr, float(np.max(np.abs(E[:, ie["steer"]] - E[:, ie["steer_driver"]]))))
-        lin_stable, rho = linear_verdict(cfg, case, point) if linear else (True, float("nan"))
-        mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
-        row = {f: getattr(case, f) for f in CASE_FIELDS}
-        row.update({
-            "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": bool(lin_stable),
-            "spectral_radius": rho, "bounded": bool(bounded),
-            "beta_rms_deg": float(np.degrees(np.sqrt(mean["ms_est"]))),
-            "yaw_rate_rms_err": float(np.sqrt(mean["ms_r"])),
-            "beta_track_rms_deg": float(np.degrees(np.sqrt(mean["ms_b"]))),
-            "yaw_moment_rms": float(np.sqrt(mean["ms_nz"])), "yaw_moment_peak_share": nz_peak / nz_max,
-            "steer_correction_max_deg": float(np.degrees(steer_corr)), "beta_max_deg": float(np.degrees(beta_max)),
-            "cost": float(np.mean(costs)),
-        })
-        rows.append(row)
-    return rows
+    return evaluate_cases(cfg, [case], points, linear=linear)
+
+
+BLOCK = 64
+"""Cases rolled out together by :func:`evaluate_cases` (bounds the memory of a batch's signals:
+64 cases x 5 s at 1 kHz hold about 120 MB of inputs and outputs)."""
 
 
 def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
-    """Rows for a batch of cases (the unit of work an executor runs)."""
-    out = []
-    for c in cases:
-        out.extend(evaluate_case(cfg, c, points, linear=linear))
-    return out
+    """Rows for a batch of cases (the unit of work an executor runs), case by case and point by point
+    as :func:`evaluate_case` orders them. The cases' rollouts of one manoeuvre and design point are one
+    call of the compiled loop (:meth:`LoopProgram.run_batch`), in blocks of :data:`BLOCK` cases."""
+    prog = program(cfg.spec())
+    mu_assumed = cfg.base_design().mu_max
+    rows: dict[tuple[int, int], dict] = {}
+    for s in range(0, len(cases), BLOCK):
+        block = list(cases[s:s + BLOCK])
+        runs = [case_inputs(cfg, c, prog)[1] for c in block]
+        n_man = len(runs[0])
+        for j, point in enumerate(points):
+            # the ECU is not told the road: its mu input is the design's "no road sensor" value
+            theta = np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias,
+                                         gyro_scale_error=c.gyro_scale_error, mu_assumed=mu_assumed) for c in block])
+            rollouts: list[list] = [[] for _ in block]
+            for m in range(n_man):
+                # cases of a block drive manoeuvres of one length; group by length all the same
+                by_len: dict[int, list[int]] = {}
+                for i, r in enumerate(runs):
+                    by_len.setdefault(r[m][0].shape[0], []).append(i)
+                for idx in by_len.values():
+                    Y, E = prog.run_batch(np.stack([runs[i][m][0] for i in idx]),
+                                          np.stack([runs[i][m][1] for i in idx]),
+                                          np.stack([runs[i][m][2] for i in idx]), theta[idx])
+                    for q, i in enumerate(idx):
+                        rollouts[i].append((Y[q], E[q]))
+            for i, c in enumerate(block):
+                rows[(s + i, j)] = _row(cfg, c, point, rollouts[i], linear)
+    return [rows[(i, j)] for i in range(len(cases)) for j in range(len(points))]
 
 
 def single_threaded_blas() -> None:

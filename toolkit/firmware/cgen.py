@@ -82,8 +82,10 @@ def _ops(p: Precision) -> dict:
         ca.OP_TANH: lambda a: f"{f('tanh')}({a[0]})",
         ca.OP_ATAN2: lambda a: f"{f('atan2')}({a[0]}, {a[1]})",
         ca.OP_FABS: lambda a: f"{f('fabs')}({a[0]})",
-        ca.OP_FMIN: lambda a: f"{f('fmin')}({a[0]}, {a[1]})",
-        ca.OP_FMAX: lambda a: f"{f('fmax')}({a[0]}, {a[1]})",
+        # fmin/fmax inline: the x86-64 C library's result (minsd/maxsd: the second operand when the
+        # two compare equal, the other one when one is NaN), without a call
+        ca.OP_FMIN: lambda a: f"({a[0]} < {a[1]} || {a[1]} != {a[1]}) ? {a[0]} : {a[1]}",
+        ca.OP_FMAX: lambda a: f"({a[0]} > {a[1]} || {a[1]} != {a[1]}) ? {a[0]} : {a[1]}",
         ca.OP_FLOOR: lambda a: f"{f('floor')}({a[0]})",
         ca.OP_CEIL: lambda a: f"{f('ceil')}({a[0]})",
         ca.OP_COPYSIGN: lambda a: f"{f('copysign')}({a[0]}, {a[1]})",
