@@ -567,10 +567,14 @@ def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, 
     lay = spec.state_layout
     z0 = lay.zeros()
     z0[lay.slot("plant")] = x0
-    z_ecu = _ECU_START.get(spec.ecu)
-    if z_ecu is None:  # the same for every run of an ECU (and a sweep starts thousands)
-        z_ecu = _ECU_START[spec.ecu] = spec.ecu.initial_state()
-    z0[lay.slot("ecu")] = z_ecu
+    # the same for every run of an ECU, and a sweep starts thousands (keyed by identity: hashing the
+    # design's tables costs more than the lookup saves)
+    hit = _ECU_START.get(id(spec.ecu))
+    if hit is None or hit[0] is not spec.ecu:
+        if len(_ECU_START) > 256:
+            _ECU_START.clear()
+        hit = _ECU_START[id(spec.ecu)] = (spec.ecu, spec.ecu.initial_state())
+    z0[lay.slot("ecu")] = hit[1]
     cmd0 = COMMANDS.pack(steer=0.0, yaw_moment=0.0, speed_ref=speed, drive_on=1.0, steer_rate=0.0)
     y0 = TRUTH.as_dict(np.asarray(model.h(x0, model.command_map(cmd0, x0, params), w0, params), float).ravel())
     first = SLOT.pack({k: y0[k] for k in SLOT})

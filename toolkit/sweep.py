@@ -225,24 +225,26 @@ def case_inputs(cfg: SweepConfig, case: Case, prog=None):
     return prog, runs
 
 
-def _row(cfg: SweepConfig, case: Case, point: DesignPoint, rollouts: list, linear: bool) -> dict:
-    """The sweep's row of one case and design point from its rollouts ((Y, E) per manoeuvre)."""
+def _summary(Y: np.ndarray, E: np.ndarray, nz_max: float) -> dict:
+    """What a row needs of one rollout (the signals themselves are dropped)."""
+    it, ie = TRUTH.index("beta"), EXTRA.index
+    finite = bool(np.all(np.isfinite(Y)) and np.all(np.isfinite(E)))
+    if not finite:
+        terms = {k: float("inf") for k in ("ms_est", "ms_r", "ms_b", "ms_nz")}
+        return {"finite": False, "beta_max": float("inf"), "terms": terms, "cost": float("inf"), "nz_peak": 0.0,
+                "steer_corr": 0.0}
+    terms = cost_terms(Y, E)
+    return {"finite": True, "beta_max": float(np.max(np.abs(Y[:, it]))), "terms": terms,
+            "cost": cost_value(terms, nz_max), "nz_peak": float(np.max(np.abs(E[:, ie("yaw_moment")]))),
+            "steer_corr": float(np.max(np.abs(E[:, ie("steer")] - E[:, ie("steer_driver")])))}
+
+
+def _row(cfg: SweepConfig, case: Case, point: DesignPoint, runs: list[dict], linear: bool) -> dict:
+    """The sweep's row of one case and design point from its rollouts' summaries (:func:`_summary`)."""
     nz_max = cfg.base_design().nz_max
-    terms, costs, bounded, beta_max, nz_peak, steer_corr = [], [], True, 0.0, 0.0, 0.0
-    it, ie = TRUTH.index("beta"), {k: i for i, k in enumerate(EXTRA)}
-    for Y, E in rollouts:
-        finite = bool(np.all(np.isfinite(Y)) and np.all(np.isfinite(E)))
-        b = float(np.max(np.abs(Y[:, it]))) if finite else float("inf")
-        bounded = bounded and finite and b < SPIN_BETA
-        beta_max = max(beta_max, b)
-        tt = cost_terms(Y, E) if finite else {k: float("inf") for k in ("ms_est", "ms_r", "ms_b", "ms_nz")}
-        terms.append(tt)
-        costs.append(cost_value(tt, nz_max))
-        if finite:
-            nz_peak = max(nz_peak, float(np.max(np.abs(E[:, ie["yaw_moment"]]))))
-            steer_corr = max(steer_corr, float(np.max(np.abs(E[:, ie["steer"]] - E[:, ie["steer_driver"]]))))
+    bounded = all(r["finite"] and r["beta_max"] < SPIN_BETA for r in runs)
     lin_stable, rho = linear_verdict(cfg, case, point) if linear else (True, float("nan"))
-    mean = {k: float(np.mean([t[k] for t in terms])) for k in terms[0]}
+    mean = {k: float(np.mean([r["terms"][k] for r in runs])) for k in runs[0]["terms"]}
     row = {f: getattr(case, f) for f in CASE_FIELDS}
     row.update({
         "design": point.name, "stable": bool(lin_stable and bounded), "linear_stable": bool(lin_stable),
@@ -250,9 +252,11 @@ def _row(cfg: SweepConfig, case: Case, point: DesignPoint, rollouts: list, linea
         "beta_rms_deg": float(np.degrees(np.sqrt(mean["ms_est"]))),
         "yaw_rate_rms_err": float(np.sqrt(mean["ms_r"])),
         "beta_track_rms_deg": float(np.degrees(np.sqrt(mean["ms_b"]))),
-        "yaw_moment_rms": float(np.sqrt(mean["ms_nz"])), "yaw_moment_peak_share": nz_peak / nz_max,
-        "steer_correction_max_deg": float(np.degrees(steer_corr)), "beta_max_deg": float(np.degrees(beta_max)),
-        "cost": float(np.mean(costs)),
+        "yaw_moment_rms": float(np.sqrt(mean["ms_nz"])),
+        "yaw_moment_peak_share": max(r["nz_peak"] for r in runs) / nz_max,
+        "steer_correction_max_deg": float(np.degrees(max(r["steer_corr"] for r in runs))),
+        "beta_max_deg": float(np.degrees(max(r["beta_max"] for r in runs))),
+        "cost": float(np.mean([r["cost"] for r in runs])),
     })
     return row
 
@@ -262,9 +266,9 @@ def evaluate_case(cfg: SweepConfig, case: Case, points: list[DesignPoint], *, li
     return evaluate_cases(cfg, [case], points, linear=linear)
 
 
-BLOCK = 64
-"""Cases rolled out together by :func:`evaluate_cases` (bounds the memory of a batch's signals:
-64 cases x 5 s at 1 kHz hold about 120 MB of inputs and outputs)."""
+BLOCK = 32
+"""Cases rolled out together by :func:`evaluate_cases`; bounds the memory a batch holds at once
+(one manoeuvre's inputs and signals: 32 cases x 5 s at 1 kHz x 64 numbers, about 80 MB)."""
 
 
 def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
@@ -272,30 +276,36 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
     as :func:`evaluate_case` orders them. The cases' rollouts of one manoeuvre and design point are one
     call of the compiled loop (:meth:`LoopProgram.run_batch`), in blocks of :data:`BLOCK` cases."""
     prog = program(cfg.spec())
-    mu_assumed = cfg.base_design().mu_max
+    mu_assumed, nz_max = cfg.base_design().mu_max, cfg.base_design().nz_max
     rows: dict[tuple[int, int], dict] = {}
     for s in range(0, len(cases), BLOCK):
         block = list(cases[s:s + BLOCK])
-        runs = [case_inputs(cfg, c, prog)[1] for c in block]
-        n_man = len(runs[0])
-        for j, point in enumerate(points):
-            # the ECU is not told the road: its mu input is the design's "no road sensor" value
-            theta = np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias,
-                                         gyro_scale_error=c.gyro_scale_error, mu_assumed=mu_assumed) for c in block])
-            rollouts: list[list] = [[] for _ in block]
-            for m in range(n_man):
-                # cases of a block drive manoeuvres of one length; group by length all the same
-                by_len: dict[int, list[int]] = {}
-                for i, r in enumerate(runs):
-                    by_len.setdefault(r[m][0].shape[0], []).append(i)
-                for idx in by_len.values():
-                    Y, E = prog.run_batch(np.stack([runs[i][m][0] for i in idx]),
-                                          np.stack([runs[i][m][1] for i in idx]),
-                                          np.stack([runs[i][m][2] for i in idx]), theta[idx])
+        # the ECU is not told the road: its mu input is the design's "no road sensor" value
+        thetas = [np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias,
+                                       gyro_scale_error=c.gyro_scale_error, mu_assumed=mu_assumed) for c in block])
+                  for point in points]
+        setup = [(truth_params(cfg.plant, c.plant_params(cfg.nominal)), c.sensors(cfg.sensors),
+                  Disturbances(friction=Friction(mu=c.mu)), standard_maneuvers(cfg, c.speed_kmh / 3.6)) for c in block]
+        rollouts: list[list[list]] = [[[] for _ in block] for _ in points]
+        for m in range(len(setup[0][3])):
+            inputs = [prog.inputs(true, mans[m], dist, sens, c.seed) for c, (true, sens, dist, mans) in zip(block, setup)]
+            by_len: dict[int, list[int]] = {}  # one call per manoeuvre length (the standard set has one)
+            for i, r in enumerate(inputs):
+                by_len.setdefault(r[0].shape[0], []).append(i)
+            for idx in by_len.values():
+                U = np.stack([inputs[i][0] for i in idx])
+                z0 = np.stack([inputs[i][1] for i in idx])
+                pv = np.stack([inputs[i][2] for i in idx])
+                for i in idx:
+                    inputs[i] = None  # U holds them now
+                for j in range(len(points)):
+                    Y, E = prog.run_batch(U, z0, pv, thetas[j][idx])
                     for q, i in enumerate(idx):
-                        rollouts[i].append((Y[q], E[q]))
+                        rollouts[j][i].append(_summary(Y[q], E[q], nz_max))
+                del U
+        for j, point in enumerate(points):
             for i, c in enumerate(block):
-                rows[(s + i, j)] = _row(cfg, c, point, rollouts[i], linear)
+                rows[(s + i, j)] = _row(cfg, c, point, rollouts[j][i], linear)
     return [rows[(i, j)] for i in range(len(cases)) for j in range(len(points))]
 
 
