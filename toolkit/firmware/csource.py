@@ -77,6 +77,7 @@ typedef struct {{
 
 typedef struct {{
     evstab_real z[EVSTAB_STATE_SIZE]; /* filter (x, P column-major, counters, buffers), then controller */
+    int seg[2]; /* schedule segments of the last period (filter, controller): where the next lookup starts */
 }} evstab_state_t;
 
 void evstab_init(evstab_state_t *s);
@@ -129,26 +130,32 @@ def source(d: EcuDesign, p: Precision, info: dict) -> str:
     lerp = "\n".join(f"    rows[{r}] = {names[row]}[lo] + t * ({names[row]}[lo + 1] - {names[row]}[lo]);"
                      for r, row in enumerate(ROWS))
     parts.append(f"""
-/* The schedule's rows at speed v (v > 0): segment by bisection, then linear in x = 1/v. */
-static void {PREFIX}_schedule(evstab_real v, evstab_real *rows)
+/* The schedule's rows at speed v (v > 0): linear in x = 1/v on the segment holding x, which is
+   the last period's (*seg) while x stays on it, else found by bisection (the same segment either way). */
+static void {PREFIX}_schedule(evstab_real v, evstab_real *rows, int *seg)
 {{
     const volatile evstab_real *ax = {names['inv_speed']};
     evstab_real x = {p.literal(1.0)} / v;
     evstab_real t, x0, x1;
-    int lo = 0, hi = EVSTAB_SCHEDULE_POINTS - 1;
+    int lo = *seg, hi = EVSTAB_SCHEDULE_POINTS - 1;
     if (x < ax[0]) {{
         x = ax[0];
     }}
     if (x > ax[EVSTAB_SCHEDULE_POINTS - 1]) {{
         x = ax[EVSTAB_SCHEDULE_POINTS - 1];
     }}
-    while (hi - lo > 1) {{
-        int mid = (lo + hi) / 2;
-        if (ax[mid] <= x) {{
-            lo = mid;
-        }} else {{
-            hi = mid;
+    if (lo < 0 || lo > EVSTAB_SCHEDULE_POINTS - 2 || !(ax[lo] <= x)
+        || !(x < ax[lo + 1] || lo == EVSTAB_SCHEDULE_POINTS - 2)) {{
+        lo = 0;
+        while (hi - lo > 1) {{
+            int mid = (lo + hi) / 2;
+            if (ax[mid] <= x) {{
+                lo = mid;
+            }} else {{
+                hi = mid;
+            }}
         }}
+        *seg = lo;
     }}
     x0 = ax[lo];
     x1 = ax[lo + 1];
@@ -181,6 +188,7 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows)
     parts.append(f"""void evstab_init(evstab_state_t *s)
 {{
     memcpy(s->z, {PREFIX}_state0, sizeof s->z);
+    s->seg[0] = s->seg[1] = 0;
 }}
 
 void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *out)
@@ -189,11 +197,11 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *o
     evstab_real zn[EVSTAB_STATE_SIZE];
     const evstab_real vf = {p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED);
     const evstab_real vc = {p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED);
-    {PREFIX}_schedule(vf, sch);
+    {PREFIX}_schedule(vf, sch, &s->seg[0]);
     if (vc == vf) {{ /* above both minimum speeds: one lookup serves both */
         memcpy(sch + {len(ROWS)}, sch, {len(ROWS)} * sizeof sch[0]);
     }} else {{
-        {PREFIX}_schedule(vc, sch + {len(ROWS)});
+        {PREFIX}_schedule(vc, sch + {len(ROWS)}, &s->seg[1]);
     }}
     if (in->gps_valid != 0) {{
         {PREFIX}_ecu_fix(s->z, in, sch, zn, out);
