@@ -1,8 +1,9 @@
 """Closed stability loop speed: the compiled loop vs python-control, same loop, same process.
 
 The loop: two-track plant -> sensors -> the ECU step (dakf, 2-DOF law) -> actuators ->
-plant, micro EV, 25 km/h, 5 deg step steer, wind, 1 kHz. evstab runs it as one compiled
-casadi rollout of :func:`toolkit.closed_loop.loop_step`. The reference gives python-control
+plant, micro EV, 25 km/h, 5 deg step steer, wind, 1 kHz. evstab runs it as one call of the
+lane kernel of :func:`toolkit.closed_loop.loop_step` (:mod:`toolkit.lanes`; the time includes
+making the run's inputs and noise). The reference gives python-control
 the same step: a discrete ``nlsys`` whose update is the numpy evaluation of that
 function (the loop is closed inside it; python-control integrates and bookkeeps), run by
 ``control.input_output_response``. python-control is slow, so it runs the first
@@ -97,7 +98,7 @@ def main(argv=None):
         y = yardstick_ns()
         write_markdown(Path(args.md), ["10 s closed loop at 1 kHz (micro-ev, two-track, dakf + 2-DOF)", "per run",
                                        "per step", "ratio"], [
-            ["evstab compiled (`loop_step` traced, `mapaccum`, C)", f"{best * 1e3:.1f} ms", f"{per_c * 1e6:.2f} us", "1"],
+            ["evstab compiled (`loop_step` traced, lane kernel in C: toolkit.lanes)", f"{best * 1e3:.1f} ms", f"{per_c * 1e6:.2f} us", "1"],
             [f"python-control `nlsys` + `input_output_response` on the same step (over {args.ref_seconds:g} s)",
              f"{per_ref * n:.1f} s", f"{per_ref * 1e6:.0f} us", f"{per_ref / per_c:.0f}x slower"],
             [f"python-control linear `ss` of the same loop ({k}-state core), `initial_response`",

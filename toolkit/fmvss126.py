@@ -29,7 +29,7 @@ from evstab.plants import G, VehicleParams
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import ramp_steer, sine_with_dwell
 
-from .simulator import RolloverError, simulate
+from .simulator import RolloverError, simulate, simulate_many
 from evstab.plants.errors import DataError
 
 SPEED = 80 / 3.6
@@ -193,28 +193,38 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
     if quick:
         amps = [x for x in amps if x >= 5.0 * a_deg - 1e-9][:2]
     rows, failed_all = [], set()
-    for amp in amps:
-        for direction, label in ((1.0, "left"), (-1.0, "right")):
-            man = sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio)
-            dist = Disturbances(friction=Friction(mu=mu))
-            hw = man.steer(np.arange(int(round(man.duration / 1e-3))) * 1e-3) * p.steering_ratio
+    runs = [(amp, direction, label, sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio))
+            for amp in amps for direction, label in ((1.0, "left"), (-1.0, "right"))]
+    dist = Disturbances(friction=Friction(mu=mu))
+    if compiled and controller != "none":  # the whole series through the compiled loop in one call
+        results = simulate_many(p, plant, [r[3] for r in runs], disturbances=dist, seed=seed, controller=controller,
+                                estimator=estimator, design=design)
+    else:
+        results = []
+        for *_, man in runs:
             try:
-                r = simulate(p, plant, man, disturbances=dist, seed=seed, compile=compiled,
-                             controller=None if controller == "none" else controller, estimator=estimator,
-                             design=design)
-                t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
-            except RolloverError as exc:  # fails the run: no criterion can be read off a car on its roof
-                failed_all.add("rollover")
-                nan = float("nan")
-                rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": nan, "yaw_ratio_1_75": nan,
-                             "lateral_displacement_m": nan, "pass": False, "failed": "rollover", "rollover_s": exc.t})
-                continue
-            sc = score_swd(t, hw[:len(t)], yaw_rate, ay)
-            ok, failed = sc.passes(amp, a_deg)
-            failed_all.update(failed)
-            rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
-                         "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
-                         "pass": ok, "failed": " ".join(failed), "rollover_s": float("nan")})
+                results.append(simulate(p, plant, man, disturbances=dist, seed=seed, compile=compiled,
+                                        controller=None if controller == "none" else controller,
+                                        estimator=estimator, design=design))
+            except RolloverError as exc:
+                results.append(exc)
+    for (amp, direction, label, man), r in zip(runs, results):
+        if isinstance(r, RolloverError):  # fails the run: no criterion can be read off a car on its roof
+            failed_all.add("rollover")
+            nan = float("nan")
+            rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": nan, "yaw_ratio_1_75": nan,
+                         "lateral_displacement_m": nan, "pass": False, "failed": "rollover", "rollover_s": r.t})
+            continue
+        if isinstance(r, Exception):
+            raise r
+        hw = man.steer(np.arange(int(round(man.duration / 1e-3))) * 1e-3) * p.steering_ratio
+        t, yaw_rate, ay = r.t, r.truth["yaw_rate"], r.truth["ay"]
+        sc = score_swd(t, hw[:len(t)], yaw_rate, ay)
+        ok, failed = sc.passes(amp, a_deg)
+        failed_all.update(failed)
+        rows.append({"amplitude_deg": amp, "direction": label, "yaw_ratio_1_0": sc.yaw_ratio_1_0,
+                     "yaw_ratio_1_75": sc.yaw_ratio_1_75, "lateral_displacement_m": sc.lateral_displacement_m,
+                     "pass": ok, "failed": " ".join(failed), "rollover_s": float("nan")})
     verdict = {"pass": not failed_all, "failed_criteria": sorted(failed_all), "A_deg": a_deg, "mu": mu,
                "controller": controller,
                "estimator": estimator, "vehicle": p.name, "speed_kmh": SPEED * 3.6}

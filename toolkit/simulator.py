@@ -142,22 +142,10 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     SimulationError
         The plant left what it can represent (``RolloverError``: the car rolled over).
     """
-    from . import closed_loop as cl
-    from .estimation.spec import FilterDesign
-
-    model = get_plant(plant) if isinstance(plant, str) else plant
-    if is_multibody(model.name):
-        nominal = nominal or params
-        params = truth_params(model.name, params)
-    model.check_params(params)
-    disturbances = disturbances or Disturbances(friction=_uniform(params.mu))
-    sensors = sensors or SensorConfig()
-    if not (dt > 0 and np.isfinite(dt)):
-        raise SimulationError(f"time step must be > 0 s, got {dt!r}")
+    model, params, nominal, disturbances, sensors = _setup(plant, params, nominal, disturbances, sensors, dt)
     n = int(round(maneuver.duration / dt))
     t = np.arange(n) * dt
     W = disturbance_profile(disturbances, t)
-    meas, extra, backend, n_sub = None, None, "numpy", None
     if controller is None and maneuver.open_loop:  # nothing feeds back: the plant alone, one call
         steer = np.asarray(maneuver.steer(t), float) * np.ones(n)
         cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=np.full(n, float(maneuver.speed)),
@@ -168,33 +156,119 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         if not np.all(np.isfinite(X)):
             Y = Y.copy()
             Y[:, int(np.argmax(~np.all(np.isfinite(X), axis=0))):] = np.nan
-        backend, n_sub = cp.backend, cp.n_sub
-        commands = COMMANDS.as_dict(cmd)
+        return _finish(model, params, maneuver, t, W, Y, COMMANDS.as_dict(cmd), None, None, sensors, seed, dt,
+                       cp.backend, cp.n_sub)
+    spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile)
+    U, z0, pv = _inputs(spec, params, maneuver, disturbances, sensors, seed)
+    if maneuver.open_loop and prog is not None:
+        Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
     else:
-        kind = "driver" if controller is None else controller
-        if kind != "driver" and kind not in cl.CONTROLLERS:
-            raise SimulationError(f"unknown controller '{controller}'; known: {', '.join(cl.CONTROLLERS)}")
-        lat = sensors.gps_latency if not isinstance(estimator, FilterDesign) else 0.0
-        spec = cl.loop_spec(nominal or params, plant=model.name, controller=kind, estimator=estimator,
-                            sensors=sensors, dt=dt, design=design, estimator_latency=lat, truth=params)
-        prog = cl.program(spec) if compile else None
-        U, z0, pv = cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
-        no_sensor = spec.ecu.ecu.controller.mu_max if spec.ecu.ecu is not None else 1.0
-        theta = cl.loop_theta(spec, gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
-                              mu_assumed=no_sensor if mu_assumed is None else mu_assumed)
-        if maneuver.open_loop and prog is not None:
-            Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
-        else:
-            driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
-            Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, driver=driver, program=prog)
-        Y = Yt.T
-        backend, n_sub = (prog.backend if prog is not None else "numpy"), spec.n_sub
-        ec, uc = cl.EXTRA.columns(E), cl.INPUTS.columns(U)
-        commands = {"steer": ec["steer"], "yaw_moment": ec["yaw_moment"], "speed_ref": uc["speed_ref"].copy(),
-                    "drive_on": uc["drive_on"].copy(), "steer_rate": ec["steer_rate"]}
-        if kind != "driver":
-            extra = {k: ec[k] for k in cl.EXTRA if k not in commands}
-            meas = _log_readings(M, Y, W, sensors, seed)
+        from . import closed_loop as cl
+        driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
+        Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, driver=driver, program=prog)
+    return _loop_result(spec, prog, model, params, maneuver, t, W, U, Yt, E, M, sensors, seed, dt)
+
+
+def simulate_many(params: VehicleParams, plant: str | PlantModel, maneuvers: list[Maneuver], *,
+                  disturbances: Disturbances | None = None, sensors: SensorConfig | None = None,
+                  seed: int = 0, dt: float = 1e-3, controller: str = "none", estimator="dakf",
+                  mu_assumed: float | None = None, nominal: VehicleParams | None = None,
+                  design=None) -> list:
+    """:func:`simulate` of several open-loop manoeuvres through the same compiled stability loop,
+    the runs of one length stepped together (:meth:`toolkit.closed_loop.LoopProgram.run_batch`): an
+    FMVSS 126 series is one call. Each run equals :func:`simulate` of it alone.
+
+    Parameters are :func:`simulate`'s, with ``maneuvers`` (open loop) for ``maneuver``; the loop is
+    always closed (``controller`` ``none`` runs the ECU and passes the driver through).
+
+    Returns
+    -------
+    list
+        Per manoeuvre, its :class:`SimResult`, or the :class:`SimulationError` (a
+        ``RolloverError`` for one) :func:`simulate` would have raised.
+    """
+    model, params, nominal, disturbances, sensors = _setup(plant, params, nominal, disturbances, sensors, dt)
+    if any(not m.open_loop for m in maneuvers):
+        raise SimulationError("simulate_many runs open-loop manoeuvres (a path follower steers sample by sample)")
+    spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, True)
+    runs = []
+    for man in maneuvers:
+        n = int(round(man.duration / dt))
+        t = np.arange(n) * dt
+        runs.append((man, t, disturbance_profile(disturbances, t), *_inputs(spec, params, man, disturbances,
+                                                                            sensors, seed)))
+    out: list = [None] * len(runs)
+    groups: dict[int, list[int]] = {}
+    for i, r in enumerate(runs):
+        groups.setdefault(len(r[1]), []).append(i)
+    for idx in groups.values():
+        if prog is not None:
+            Yb, Eb, Mb = prog.run_batch(np.stack([runs[i][3] for i in idx]), np.stack([runs[i][4] for i in idx]),
+                                        np.stack([runs[i][5] for i in idx]), np.tile(theta, (len(idx), 1)), meas=True)
+        for q, i in enumerate(idx):
+            man, t, W, U, z0, pv = runs[i]
+            if prog is None:
+                from . import closed_loop as cl
+                Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, program=None)
+            else:
+                Yt, E, M = Yb[q], Eb[q], Mb[q]
+            try:
+                out[i] = _loop_result(spec, prog, model, params, man, t, W, U, Yt, E, M, sensors, seed, dt)
+            except SimulationError as exc:
+                out[i] = exc
+    return out
+
+
+def _setup(plant, params, nominal, disturbances, sensors, dt):
+    model = get_plant(plant) if isinstance(plant, str) else plant
+    if is_multibody(model.name):
+        nominal = nominal or params
+        params = truth_params(model.name, params)
+    model.check_params(params)
+    disturbances = disturbances or Disturbances(friction=_uniform(params.mu))
+    sensors = sensors or SensorConfig()
+    if not (dt > 0 and np.isfinite(dt)):
+        raise SimulationError(f"time step must be > 0 s, got {dt!r}")
+    return model, params, nominal, disturbances, sensors
+
+
+def _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile):
+    """(spec, compiled program or None, theta) of the stability loop a simulation closes."""
+    from . import closed_loop as cl
+    from .estimation.spec import FilterDesign
+    kind = "driver" if controller is None else controller
+    if kind != "driver" and kind not in cl.CONTROLLERS:
+        raise SimulationError(f"unknown controller '{controller}'; known: {', '.join(cl.CONTROLLERS)}")
+    lat = sensors.gps_latency if not isinstance(estimator, FilterDesign) else 0.0
+    spec = cl.loop_spec(nominal or params, plant=model.name, controller=kind, estimator=estimator,
+                        sensors=sensors, dt=dt, design=design, estimator_latency=lat, truth=params)
+    prog = cl.program(spec) if compile else None
+    no_sensor = spec.ecu.ecu.controller.mu_max if spec.ecu.ecu is not None else 1.0
+    theta = cl.loop_theta(spec, gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
+                          mu_assumed=no_sensor if mu_assumed is None else mu_assumed)
+    return spec, prog, theta
+
+
+def _inputs(spec, params, maneuver, disturbances, sensors, seed):
+    from . import closed_loop as cl
+    return cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
+
+
+def _loop_result(spec, prog, model, params, maneuver, t, W, U, Yt, E, M, sensors, seed, dt) -> SimResult:
+    from . import closed_loop as cl
+    Y = Yt.T
+    ec, uc = cl.EXTRA.columns(E), cl.INPUTS.columns(U)
+    commands = {"steer": ec["steer"], "yaw_moment": ec["yaw_moment"], "speed_ref": uc["speed_ref"].copy(),
+                "drive_on": uc["drive_on"].copy(), "steer_rate": ec["steer_rate"]}
+    extra = meas = None
+    if spec.ecu.kind != "driver":
+        extra = {k: ec[k] for k in cl.EXTRA if k not in commands}
+        meas = _log_readings(M, Y, W, sensors, seed)
+    return _finish(model, params, maneuver, t, W, Y, commands, extra, meas, sensors, seed, dt,
+                   prog.backend if prog is not None else "numpy", spec.n_sub)
+
+
+def _finish(model, params, maneuver, t, W, Y, commands, extra, meas, sensors, seed, dt, backend, n_sub) -> SimResult:
     truth = TRUTH.as_dict(Y)
     if is_multibody(model.name):
         check_rollover(model.name, truth["roll"], dt, maneuver)

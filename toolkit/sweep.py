@@ -328,9 +328,12 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
 
     ``executor``: ``local`` (a process pool of ``workers``, default the CPU count; 1 runs
     in this process), ``dask`` (a Dask distributed cluster at ``scheduler``, or a local
-    cluster when none is given). Results are identical either way.
+    cluster when none is given). Results are identical either way. ``batch`` cases go to a task,
+    rounded up to a multiple of the compiled loop's lane width (a task's cases are stepped
+    together, :func:`evaluate_cases`).
     """
-    batches = _batches(list(cases), batch)
+    from .lanes import WIDTH
+    batches = _batches(list(cases), -(-max(1, batch) // WIDTH) * WIDTH)
     results: list[list[dict]] = [None] * len(batches)  # type: ignore[list-item]
     bar = _progress(len(cases), progress)
     if executor == "local":
