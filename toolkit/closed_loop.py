@@ -306,7 +306,14 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     return z_n, y, extra, meas
 
 
-def _build(spec: LoopSpec):
+def _lane_step(spec: LoopSpec):
+    """The step traced for a lane kernel: schedule reads as call nodes (:func:`controllers.schedule.as_call_nodes`)."""
+    from evstab.controllers.schedule import as_call_nodes
+    with as_call_nodes():
+        return _build(spec, chunk=False)[0]
+
+
+def _build(spec: LoopSpec, chunk: bool = True):
     model = get_plant(spec.plant)
     sizes = spec.sizes
     Z = ca.SX.sym("z", sum(sizes))
@@ -317,6 +324,8 @@ def _build(spec: LoopSpec):
     Zn, y, extra, meas = loop_step(spec, model, sp, Z, U, th, CASADI)
     step = ca.Function("loop_step", [Z, U, pv, th], [Zn, y, extra, meas], ["z", "u", "p", "theta"],
                        ["z_next", "truth", "extra", "meas"])
+    if not chunk:
+        return step, None, (Z, U, pv, th, Zn)
     acc = step.mapaccum("loop_acc", CHUNK)
     z0, Uc = ca.MX.sym("z0", Z.shape[0]), ca.MX.sym("U", U.shape[0], CHUNK)
     pm, tm = ca.MX.sym("p", pv.shape[0]), ca.MX.sym("theta", th.shape[0])
@@ -358,8 +367,8 @@ class LoopProgram:
         self.cf = self.cstep = self.lanes = None
         if compile and lanes:
             try:
-                self.lanes = lanes_mod.compile_rollout(self.step, cache_key("loop_lanes", spec, SLOTS, lanes_mod.WIDTH,
-                                                                             lanes_mod.machine_tag()), LANE_ROLES)
+                self.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
+                    "loop_lanes", spec, SLOTS, lanes_mod.WIDTH, lanes_mod.machine_tag()), LANE_ROLES)
             except CompileError as e:
                 warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
         if compile and self.lanes is None:

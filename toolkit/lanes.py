@@ -540,8 +540,9 @@ class LaneRollout:
         return z_end, outputs
 
 
-def compile_rollout(fn: ca.Function, key: str, roles: Roles, name: str = "ev_rollout") -> LaneRollout | None:
-    """The lane kernel of ``fn`` from the compiled cache (built when missing); None without a C compiler."""
+def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout") -> LaneRollout | None:
+    """The lane kernel of ``fn`` (a casadi SX function, or a callable returning one) from the compiled
+    cache, built when missing; None without a C compiler."""
     from .compiled import _cache_dir, compiler
     import subprocess
     import tempfile
@@ -549,6 +550,7 @@ def compile_rollout(fn: ca.Function, key: str, roles: Roles, name: str = "ev_rol
     cc = compiler()
     if cc is None:
         return None
+    fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
     out_dir = _cache_dir()
     lib = out_dir / f"evstab_{key}.so"
     if not lib.is_file():

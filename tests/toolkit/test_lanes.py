@@ -191,13 +191,16 @@ def test_sweep_rows_do_not_depend_on_the_batching():
 
 
 def test_schedule_in_a_lane_kernel_is_the_firmwares_table_lookup(tmp_path):
-    """A traced schedule read is a call node; the lane kernel runs the segment lookup in its place,
+    """A schedule read traced for a lane kernel is a call node; the kernel runs the segment lookup in its place,
     the numpy branch's (and the exported C's) arithmetic bit for bit, where casadi evaluates the
     hat-function sums, equal to rounding."""
-    from evstab.controllers.schedule import ROWS, SpeedSchedule
+    from evstab.controllers.schedule import ROWS, SpeedSchedule, as_call_nodes
     s = SpeedSchedule.build(load_vehicle("compact-ev"))
     z, v = ca.SX.sym("z"), ca.SX.sym("v")
-    rows = ca.vertcat(*s.values(v, cl.CASADI))
+    inline = ca.vertcat(*s.values(v, cl.CASADI))
+    assert not ca.Function("h", [v], [inline]).has_free() and ca.depends_on(inline, v)
+    with as_call_nodes():
+        rows = ca.vertcat(*s.values(v, cl.CASADI))
     f = ca.Function("f", [z, v], [z, rows])
     assert any(f.instruction_id(k) == ca.OP_CALL for k in range(f.n_instructions()))
     speeds = np.concatenate([np.geomspace(0.5, 90.0, 3001), s.speeds, [0.0, -3.0, np.inf]])
@@ -208,7 +211,7 @@ def test_schedule_in_a_lane_kernel_is_the_firmwares_table_lookup(tmp_path):
     ok = speeds >= 0.0
     np.testing.assert_array_equal(R[0][ok], ref[ok])
     np.testing.assert_array_equal(R[0][speeds < 0], np.tile(np.asarray(s.table)[:, 0], (1, 1)))  # 1/v < 0: first point
-    hat = np.array(ca.Function("g", [v], [rows]).map(int(ok.sum()))(speeds[ok][None, :])).T
+    hat = np.array(ca.Function("g", [v], [inline]).map(int(ok.sum()))(speeds[ok][None, :])).T
     np.testing.assert_allclose(R[0][ok], hat, rtol=1e-13, atol=1e-13 * np.abs(np.asarray(s.table)).max())
     assert R.shape[2] == len(ROWS)
 
