@@ -57,7 +57,7 @@ def main(argv=None):
     dist = Disturbances(wind=default_wind(p))
     sens = SensorConfig()
     spec = cl.loop_spec(p, sensors=sens)
-    prog = cl.program(spec)  # build and compile once
+    prog = cl.program(spec).compile()  # build and compile once
     best = np.inf
     for _ in range(5):
         t0 = time.perf_counter()

@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import warnings
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import casadi as ca
 import numpy as np
@@ -356,27 +357,79 @@ class LoopProgram:
 
     def __init__(self, spec: LoopSpec, compile: bool = True, lanes: bool = True):
         """``compile``: build C (else casadi's virtual machine); ``lanes``: the lane kernel (else
-        casadi's generated C, the reference the kernel is checked against)."""
+        casadi's generated C, the reference the kernel is checked against). Tracing and compiling
+        happen when first needed: a run builds the kernel, :meth:`jacobian` and the tuning the
+        casadi trace."""
         self.spec = spec
-        self.step, self.chunk, self._sym = _build(spec)
         self.model = get_plant(spec.plant)
         self.sizes = spec.sizes
         self.names = spec.fields
         self.nin = n_inputs()
         self._jac = None
-        self.cf = self.cstep = self.lanes = None
-        if compile and lanes:
+        # shared with the with_spec copies, so that one build serves them all
+        self._lazy = SimpleNamespace(trace=None, compiled=False, lanes=None, cf=None, cstep=None,
+                                     compile=compile, use_lanes=lanes)
+
+    # --- built on first use
+    def _trace(self):
+        if self._lazy.trace is None:
+            self._lazy.trace = _build(self.spec)
+        return self._lazy.trace
+
+    @property
+    def step(self) -> ca.Function:
+        """The traced step ``(z, u, p, theta) -> (z_next, truth, extra, meas)`` (casadi SX)."""
+        return self._trace()[0]
+
+    @property
+    def chunk(self) -> ca.Function:
+        return self._trace()[1]
+
+    @property
+    def _sym(self):
+        return self._trace()[2]
+
+    def _build_code(self):
+        lz = self._lazy
+        if lz.compiled:
+            return lz
+        lz.compiled = True
+        spec = self.spec
+        if lz.compile and lz.use_lanes:
             try:
-                self.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
+                lz.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
                     "loop_lanes", spec, SLOTS, lanes_mod.WIDTH, lanes_mod.machine_tag()), LANE_ROLES)
             except CompileError as e:
                 warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
-        if compile and self.lanes is None:
+        if lz.compile and lz.lanes is None:
             lib = compile_library([self.chunk, self.step], cache_key("loop", spec, CHUNK, SLOTS))
             if lib is not None:
                 dll = ctypes.CDLL(str(lib))
-                self.cf, self.cstep = CFunction(dll, "loop_chunk"), CFunction(dll, "loop_step")
-        self.backend = "lanes" if self.lanes is not None else ("c" if self.cf is not None else "casadi")
+                lz.cf, lz.cstep = CFunction(dll, "loop_chunk"), CFunction(dll, "loop_step")
+        return lz
+
+    @property
+    def lanes(self):
+        """The lane kernel (:class:`toolkit.lanes.LaneRollout`), or None."""
+        return self._build_code().lanes
+
+    @property
+    def cf(self):
+        return self._build_code().cf
+
+    @property
+    def cstep(self):
+        return self._build_code().cstep
+
+    @property
+    def backend(self) -> str:
+        """``lanes`` (the lane kernel), ``c`` (casadi's generated C) or ``casadi`` (its virtual machine)."""
+        return "lanes" if self.lanes is not None else ("c" if self.cf is not None else "casadi")
+
+    def compile(self) -> "LoopProgram":
+        """Build the compiled code now (it is otherwise built by the first run)."""
+        self._build_code()
+        return self
 
     def with_spec(self, spec: LoopSpec) -> "LoopProgram":
         """The same compiled program, with ``spec`` (equal up to calibration) for its defaults."""

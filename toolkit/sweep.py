@@ -343,7 +343,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
                 results[i] = evaluate_cases(cfg, b, points, linear)
                 bar.update(len(b))
         else:
-            program(cfg.spec())  # compile once here; the workers load the cached library
+            program(cfg.spec()).compile()  # once here; the forked workers inherit the loaded library
             import multiprocessing as mp
             # fork where there is one (no re-import of the caller's script); the pool is torn
             # down before anything else runs, and casadi starts no threads of its own
@@ -365,7 +365,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
         else:
             client = Client(scheduler)
         try:
-            program(cfg.spec())
+            program(cfg.spec()).compile()  # once here; the workers load the cached library
             futs = [client.submit(evaluate_cases, cfg, b, points, linear, pure=False) for b in batches]
             index = {f.key: i for i, f in enumerate(futs)}
             for f in dask_completed(futs):
