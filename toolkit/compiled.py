@@ -176,6 +176,19 @@ def cached_library(key: str) -> Path | None:
 
 def compile_library(funcs: list, key: str, opt: str = "-O3") -> Path | None:
     """Generate C for casadi ``funcs``, compile (``opt``) to a cached shared library; None without a compiler."""
+    def write(c_file: Path) -> None:
+        cg = ca.CodeGenerator(c_file.name, {"with_header": False})
+        for fn in funcs:
+            cg.add(fn)
+        cg.generate(str(c_file.parent) + os.sep)
+    return compile_source(write, key, (opt,), "casadi's virtual machine")
+
+
+def compile_source(write, key: str, flags: tuple[str, ...], fallback: str) -> Path | None:
+    """The cached shared library ``evstab_<key>.so``, built when missing: ``write(path)`` writes its C
+    source to ``path`` (in a temporary folder), compiled with ``flags`` and moved into place
+    atomically; None without a compiler, or (with a warning naming ``fallback``, what runs instead)
+    when the compiler fails."""
     cc = compiler()
     if cc is None:
         return None
@@ -185,16 +198,13 @@ def compile_library(funcs: list, key: str, opt: str = "-O3") -> Path | None:
         return lib
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-        name = f"evstab_{key}"
-        cg = ca.CodeGenerator(name + ".c", {"with_header": False})
-        for fn in funcs:
-            cg.add(fn)
-        cg.generate(tmp + os.sep)
-        tmp_lib = Path(tmp) / (name + ".so")
-        res = subprocess.run([cc, opt, "-shared", "-fPIC", "-o", str(tmp_lib), str(Path(tmp) / (name + ".c")),
-                              "-lm"], capture_output=True, text=True)
+        c_file = Path(tmp) / f"evstab_{key}.c"
+        write(c_file)
+        tmp_lib = c_file.with_suffix(".so")
+        res = subprocess.run([cc, *flags, "-shared", "-fPIC", "-o", str(tmp_lib), str(c_file), "-lm"],
+                             capture_output=True, text=True)
         if res.returncode != 0:
-            warnings.warn(f"evstab: C compilation failed, using casadi's virtual machine: {res.stderr[:500]}")
+            warnings.warn(f"evstab: C compilation failed, using {fallback}: {res.stderr[:500]}")
             return None
         os.replace(tmp_lib, lib)  # atomic: a concurrent reader sees the old or the complete file
     return lib

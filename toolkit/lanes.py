@@ -24,7 +24,6 @@ libm.
 from __future__ import annotations
 
 import ctypes
-import os
 import platform
 from dataclasses import dataclass
 from pathlib import Path
@@ -543,28 +542,13 @@ class LaneRollout:
 
 def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout") -> LaneRollout | None:
     """The lane kernel of ``fn`` (a casadi SX function, or a callable returning one) from the compiled
-    cache, built when missing; None without a C compiler."""
-    from .compiled import _cache_dir, compiler
-    import subprocess
-    import tempfile
-    import warnings
-    cc = compiler()
-    if cc is None:
+    cache, built when missing; None without a C compiler or when the compiler fails."""
+    from .compiled import compile_source, compiler
+    if compiler() is None:
         return None
     fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
-    out_dir = _cache_dir()
-    lib = out_dir / f"evstab_{key}.so"
-    if not lib.is_file():
-        out_dir.mkdir(parents=True, exist_ok=True)
-        src = rollout_source(fn, name, roles)
-        with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-            c_file = Path(tmp) / f"evstab_{key}.c"
-            c_file.write_text(src)
-            tmp_lib = Path(tmp) / c_file.with_suffix(".so").name
-            res = subprocess.run([cc, *CFLAGS, "-shared", "-fPIC", "-o", str(tmp_lib), str(c_file), "-lm"],
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                warnings.warn(f"evstab: lane kernel compilation failed, using the scalar path: {res.stderr[:500]}")
-                return None
-            os.replace(tmp_lib, lib)
+    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles)), key, CFLAGS,
+                         "casadi's generated C")
+    if lib is None:
+        return None
     return LaneRollout(lib, name, fn, roles)
