@@ -215,14 +215,17 @@ def linear_verdict(cfg: SweepConfig, case: Case, point: DesignPoint) -> tuple[bo
     return st.stable, 1.0 - st.margin
 
 
+def case_setup(cfg: SweepConfig, case: Case):
+    """What a case's runs are made of: (the plant's parameters, sensors, disturbances, manoeuvres)."""
+    return (truth_params(cfg.plant, case.plant_params(cfg.nominal)), case.sensors(cfg.sensors),
+            Disturbances(friction=Friction(mu=case.mu)), standard_maneuvers(cfg, case.speed_kmh / 3.6))
+
+
 def case_inputs(cfg: SweepConfig, case: Case, prog=None):
     """Per manoeuvre: (U, z0, p) for the compiled loop, and the theta entries of the case."""
     prog = prog if prog is not None else program(cfg.spec())
-    true = truth_params(cfg.plant, case.plant_params(cfg.nominal))
-    sens = case.sensors(cfg.sensors)
-    dist = Disturbances(friction=Friction(mu=case.mu))
-    runs = [prog.inputs(true, man, dist, sens, case.seed) for man in standard_maneuvers(cfg, case.speed_kmh / 3.6)]
-    return prog, runs
+    true, sens, dist, mans = case_setup(cfg, case)
+    return prog, [prog.inputs(true, man, dist, sens, case.seed) for man in mans]
 
 
 def _summary(Y: np.ndarray, E: np.ndarray, nz_max: float) -> dict:
@@ -284,8 +287,7 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
         thetas = [np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias,
                                        gyro_scale_error=c.gyro_scale_error, mu_assumed=mu_assumed) for c in block])
                   for point in points]
-        setup = [(truth_params(cfg.plant, c.plant_params(cfg.nominal)), c.sensors(cfg.sensors),
-                  Disturbances(friction=Friction(mu=c.mu)), standard_maneuvers(cfg, c.speed_kmh / 3.6)) for c in block]
+        setup = [case_setup(cfg, c) for c in block]
         rollouts: list[list[list]] = [[[] for _ in block] for _ in points]
         for m in range(len(setup[0][3])):
             inputs = [prog.inputs(true, mans[m], dist, sens, c.seed) for c, (true, sens, dist, mans) in zip(block, setup)]
