@@ -158,12 +158,12 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
             Y[:, int(np.argmax(~np.all(np.isfinite(X), axis=0))):] = np.nan
         return _finish(model, params, maneuver, t, W, Y, COMMANDS.as_dict(cmd), None, None, sensors, seed, dt,
                        cp.backend, cp.n_sub)
+    from . import closed_loop as cl
     spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile)
-    U, z0, pv = _inputs(spec, params, maneuver, disturbances, sensors, seed)
+    U, z0, pv = cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
     if maneuver.open_loop and prog is not None:
         Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
     else:
-        from . import closed_loop as cl
         driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
         Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, driver=driver, program=prog)
     return _loop_result(spec, prog, model, params, maneuver, t, W, U, Yt, E, M, sensors, seed, dt)
@@ -190,30 +190,24 @@ def simulate_many(params: VehicleParams, plant: str | PlantModel, maneuvers: lis
     model, params, nominal, disturbances, sensors = _setup(plant, params, nominal, disturbances, sensors, dt)
     if any(not m.open_loop for m in maneuvers):
         raise SimulationError("simulate_many runs open-loop manoeuvres (a path follower steers sample by sample)")
+    from . import closed_loop as cl
     spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, True)
     runs = []
     for man in maneuvers:
-        n = int(round(man.duration / dt))
-        t = np.arange(n) * dt
-        runs.append((man, t, disturbance_profile(disturbances, t), *_inputs(spec, params, man, disturbances,
-                                                                            sensors, seed)))
+        t = np.arange(int(round(man.duration / dt))) * dt
+        runs.append((man, t, disturbance_profile(disturbances, t),
+                     *cl.loop_inputs(spec, params, man, disturbances, sensors, seed)))
     out: list = [None] * len(runs)
     groups: dict[int, list[int]] = {}
     for i, r in enumerate(runs):
         groups.setdefault(len(r[1]), []).append(i)
     for idx in groups.values():
-        if prog is not None:
-            Yb, Eb, Mb = prog.run_batch(np.stack([runs[i][3] for i in idx]), np.stack([runs[i][4] for i in idx]),
-                                        np.stack([runs[i][5] for i in idx]), np.tile(theta, (len(idx), 1)), meas=True)
+        Yb, Eb, Mb = prog.run_batch(np.stack([runs[i][3] for i in idx]), np.stack([runs[i][4] for i in idx]),
+                                    np.stack([runs[i][5] for i in idx]), np.tile(theta, (len(idx), 1)), meas=True)
         for q, i in enumerate(idx):
-            man, t, W, U, z0, pv = runs[i]
-            if prog is None:
-                from . import closed_loop as cl
-                Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, program=None)
-            else:
-                Yt, E, M = Yb[q], Eb[q], Mb[q]
+            man, t, W, U, _, _ = runs[i]
             try:
-                out[i] = _loop_result(spec, prog, model, params, man, t, W, U, Yt, E, M, sensors, seed, dt)
+                out[i] = _loop_result(spec, prog, model, params, man, t, W, U, Yb[q], Eb[q], Mb[q], sensors, seed, dt)
             except SimulationError as exc:
                 out[i] = exc
     return out
@@ -247,11 +241,6 @@ def _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu
     theta = cl.loop_theta(spec, gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
                           mu_assumed=no_sensor if mu_assumed is None else mu_assumed)
     return spec, prog, theta
-
-
-def _inputs(spec, params, maneuver, disturbances, sensors, seed):
-    from . import closed_loop as cl
-    return cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
 
 
 def _loop_result(spec, prog, model, params, maneuver, t, W, U, Yt, E, M, sensors, seed, dt) -> SimResult:
