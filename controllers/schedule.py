@@ -53,40 +53,25 @@ RULE = ("x = 1/speed clamped to [inv_speed[0], inv_speed[-1]]; each row interpol
 
 
 @dataclass(frozen=True)
-class SpeedSchedule:
-    """Lateral-model coefficients tabulated over inverse speed (frozen, hashable)."""
+class SpeedTable:
+    """Rows tabulated over inverse speed and read by the interpolation rule :data:`RULE` (frozen,
+    hashable). :class:`SpeedSchedule` is the lateral model's table; a filter's transition over one
+    control period (:mod:`toolkit.estimation.transition`) is another on the same grid."""
 
     inv_speed: tuple[float, ...]
     """Grid of ``x = 1 / v`` [s/m], strictly increasing."""
     table: tuple[tuple[float, ...], ...]
-    """``len(ROWS)`` rows, one value per grid point."""
+    """The rows, one value per grid point."""
 
     def __post_init__(self):
         x = np.asarray(self.inv_speed, float)
         if x.ndim != 1 or len(x) < 2 or not np.all(np.isfinite(x)) or not np.all(np.diff(x) > 0) or x[0] <= 0:
             raise ModelError(f"speed schedule: 'inv_speed' must be >= 2 finite, positive, strictly increasing "
                              f"values [s/m], got {self.inv_speed!r}")
-        if len(self.table) != len(ROWS) or any(len(r) != len(x) for r in self.table):
-            raise ModelError(f"speed schedule: 'table' must have {len(ROWS)} rows ({', '.join(ROWS)}) of "
-                             f"{len(x)} values each")
+        if not self.table or any(len(r) != len(x) for r in self.table):
+            raise ModelError(f"speed schedule: 'table' must have rows of {len(x)} values each")
         if not all(np.all(np.isfinite(r)) for r in self.table):
             raise ModelError("speed schedule: 'table' holds a value that is not finite")
-
-    @classmethod
-    def build(cls, p: VehicleParams, v_min: float = 2.0, v_max: float = 70.0, n: int = 32) -> "SpeedSchedule":
-        """Tabulate ``p``'s coefficients at ``n`` speeds spaced geometrically from ``v_max`` to ``v_min`` [m/s].
-
-        Geometric spacing (constant ratio between neighbours) keeps the relative
-        interpolation error of ``a12`` and the reference gains alike across speeds: with
-        32 points from 2 to 70 m/s it is below 0.4 % for the bundled vehicles, against
-        2-8 % for the same number of points uniform in speed or in ``1 / v``.
-        """
-        if not (0 < v_min < v_max and n >= 2):
-            raise ModelError(f"speed schedule needs 0 < v_min < v_max and n >= 2, got {v_min}, {v_max}, {n}")
-        x = 1.0 / np.geomspace(v_max, v_min, n)
-        cols = [list(lateral_coefficients(p, 1.0 / xi)) + list(steady_state_gains(p, 1.0 / xi)) for xi in x]
-        rows = np.array(cols, float).T
-        return cls(tuple(float(v) for v in x), tuple(tuple(float(v) for v in r) for r in rows))
 
     @property
     def speeds(self) -> np.ndarray:
@@ -107,11 +92,11 @@ class SpeedSchedule:
             i = np.clip(np.searchsorted(ax, x, side="right") - 1, 0, n - 2)
             t = (x - ax[i]) / (ax[i + 1] - ax[i])
             tab = np.asarray(self.table)
-            return tuple(tab[r, i] + t * (tab[r, i + 1] - tab[r, i]) for r in range(len(ROWS)))
+            return tuple(tab[r, i] + t * (tab[r, i + 1] - tab[r, i]) for r in range(len(self.table)))
         if not _CALL_NODES:
             return self._hat_sums(v, o)
         out = _casadi_function(self)(v)
-        return tuple(out[r] for r in range(len(ROWS)))
+        return tuple(out[r] for r in range(len(self.table)))
 
     def _hat_sums(self, v, o) -> tuple:
         ax = np.asarray(self.inv_speed)
@@ -156,6 +141,35 @@ class SpeedSchedule:
 }}
 """
 
+
+
+@dataclass(frozen=True)
+class SpeedSchedule(SpeedTable):
+    """Lateral-model coefficients tabulated over inverse speed: the rows :data:`ROWS`."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if len(self.table) != len(ROWS):
+            raise ModelError(f"speed schedule: 'table' must have {len(ROWS)} rows ({', '.join(ROWS)}) of "
+                             f"{len(self.inv_speed)} values each")
+
+    @classmethod
+    def build(cls, p: VehicleParams, v_min: float = 2.0, v_max: float = 70.0, n: int = 32) -> "SpeedSchedule":
+        """Tabulate ``p``'s coefficients at ``n`` speeds spaced geometrically from ``v_max`` to ``v_min`` [m/s].
+
+        Geometric spacing (constant ratio between neighbours) keeps the relative
+        interpolation error of ``a12`` and the reference gains alike across speeds: with
+        32 points from 2 to 70 m/s it is below 0.4 % for the bundled vehicles, against
+        2-8 % for the same number of points uniform in speed or in ``1 / v``.
+        """
+        if not (0 < v_min < v_max and n >= 2):
+            raise ModelError(f"speed schedule needs 0 < v_min < v_max and n >= 2, got {v_min}, {v_max}, {n}")
+        x = 1.0 / np.geomspace(v_max, v_min, n)
+        cols = [list(lateral_coefficients(p, 1.0 / xi)) + list(steady_state_gains(p, 1.0 / xi)) for xi in x]
+        rows = np.array(cols, float).T
+        return cls(tuple(float(v) for v in x), tuple(tuple(float(v) for v in r) for r in rows))
+
+
     def max_error(self, p: VehicleParams, points: int = 2000) -> dict:
         """Largest relative interpolation error of each row against the exact model between the grid's ends."""
         x = np.linspace(self.inv_speed[0], self.inv_speed[-1], points)
@@ -198,7 +212,7 @@ def as_call_nodes():
 
 
 @lru_cache(maxsize=64)
-def _casadi_function(sched: SpeedSchedule):
+def _casadi_function(sched: SpeedTable):
     """The casadi function ``v -> rows`` of a table (the hat sums), called as a ``never_inline``
     node; its lane-kernel form is registered under the same name."""
     import casadi as ca

@@ -32,6 +32,8 @@ def is_symbolic(*values) -> bool:
 def _np_stack(items):
     arrays = [np.asarray(i, dtype=float) for i in items]
     shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    if not shape:  # all scalars (one sample): one array, no broadcasting
+        return np.array(arrays)
     return np.stack([np.broadcast_to(a, shape) for a in arrays])
 
 

@@ -14,11 +14,10 @@ import numpy as np
 
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams
-from evstab.plants.backend import NUMPY
 
 from .estimation.analysis import measurement_rows, observability, periodic_gains
-from .estimation.kalman import discretize
-from .estimation.spec import FilterDesign, continuous_model
+from .estimation.kalman import transition_matrix
+from .estimation.spec import FilterDesign
 from .stability import channel_margins, estimator_loop, nominal_loop
 
 SPEEDS_KMH = (10.0, 20.0, 40.0, 60.0, 80.0, 100.0, 120.0, 140.0)
@@ -30,8 +29,7 @@ def estimator_periodic_poles(d: FilterDesign, v: float, gps_rate: float, dt: flo
     The a-priori error of a Kalman filter evolves as ``e+ = F (I - K C) e`` per sample; the
     product over the period with the periodic gains, ``ln(lambda) / T_gps``.
     """
-    A, _ = continuous_model(d, v, NUMPY)
-    F, _ = discretize(A, dt, NUMPY, d.n)
+    F = transition_matrix(d, v, dt)
     C = measurement_rows(d, v)
     gains, _ = periodic_gains(d, v, gps_rate, dt)
     M = np.eye(d.n)

@@ -445,9 +445,9 @@ class LoopProgram:
         return loop_theta(self.spec, **kw)
 
     def inputs(self, params: VehicleParams, maneuver: Maneuver, disturbances: Disturbances, sensors: SensorConfig,
-               seed: int):
+               seed: int, **kw):
         """See :func:`loop_inputs`."""
-        return loop_inputs(self.spec, params, maneuver, disturbances, sensors, seed)
+        return loop_inputs(self.spec, params, maneuver, disturbances, sensors, seed, **kw)
 
     # --- evaluation
     def run(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, final_state: bool = False,
@@ -584,22 +584,39 @@ def loop_theta(spec: LoopSpec, *, gyro_bias: float = 0.0, gyro_scale_error: floa
     return np.array([float(vals[k]) for k in names] + [float(case[k]) for k in CASE])
 
 
+def samples(spec: LoopSpec, maneuver: Maneuver) -> int:
+    """The number of loop samples of a run of ``maneuver``."""
+    return int(round(maneuver.duration / spec.dt))
+
+
 def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, disturbances: Disturbances,
-                sensors: SensorConfig, seed: int):
-    """(U, z0, p) for a run: the input matrix (samples x inputs), initial loop state, plant parameters."""
+                sensors: SensorConfig, seed: int, *, out: np.ndarray | None = None, noise: np.ndarray | None = None):
+    """(U, z0, p) for a run: the input matrix (samples x inputs), initial loop state, plant parameters.
+
+    ``out``: a (samples x inputs) float array to fill and return as ``U`` (a batch's slice: no copy);
+    ``noise``: the run's :func:`noise_matrix` when the caller already drew it (runs of one seed and
+    length draw the same)."""
     dt = spec.dt
     model = get_plant(spec.plant)
-    n = int(round(maneuver.duration / dt))
+    n = samples(spec, maneuver)
     t = np.arange(n) * dt
     W = disturbance_profile(disturbances, t)
-    U = INPUTS.zeros(n)
+    if out is None:
+        U = INPUTS.zeros(n)
+    else:
+        if out.shape != (n, INPUTS.size) or out.dtype != float:
+            raise LoopError(f"loop_inputs: out must be a float ({n}, {INPUTS.size}) array, got {out.dtype} {out.shape}")
+        U = out
     col = INPUTS.columns(U)  # views: writing them fills U
-    if maneuver.open_loop:
-        col["steer_driver"][:] = maneuver.steer(t)
+    col["steer_driver"][:] = maneuver.steer(t) if maneuver.open_loop else 0.0
     col["speed_ref"][:] = maneuver.speed
     col["drive_on"][:] = maneuver.drive_on(t)
     col["disturbances"][:] = W.T
-    col["noise"][:] = noise_matrix(sensors, seed, n).T
+    if noise is None:
+        noise = noise_matrix(sensors, seed, n)
+    elif noise.shape != (NOISE.size, n):
+        raise LoopError(f"loop_inputs: noise must be ({NOISE.size}, {n}), got {noise.shape}")
+    col["noise"][:] = noise.T
     fix = gps_fix_mask(t, sensors)
     col["fix"][:] = fix
     col["capture"][:], col["emit"][:] = latch_schedule_parts(fix, sensors.gps_latency, dt)

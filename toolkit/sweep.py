@@ -35,7 +35,7 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import Maneuver, sine_lane_change, step_steer, steer_for_lateral_acceleration
 from evstab.plants.sensors import SensorConfig
 
-from .closed_loop import EXTRA, loop_spec, program
+from .closed_loop import EXTRA, loop_spec, noise_matrix, program, samples
 from .estimation import design_filter
 from .estimation.spec import FilterDesign, NoiseSettings
 from .stability import estimator_loop
@@ -289,17 +289,23 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
                   for point in points]
         setup = [case_setup(cfg, c) for c in block]
         rollouts: list[list[list]] = [[[] for _ in block] for _ in points]
+        # a case's runs of one length draw the same noise (its seed): drawn once, shared by its manoeuvres
+        noise: dict[tuple[int, int], np.ndarray] = {}
         for m in range(len(setup[0][3])):
-            inputs = [prog.inputs(true, mans[m], dist, sens, c.seed) for c, (true, sens, dist, mans) in zip(block, setup)]
             by_len: dict[int, list[int]] = {}  # one call per manoeuvre length (the standard set has one)
-            for i, r in enumerate(inputs):
-                by_len.setdefault(r[0].shape[0], []).append(i)
-            for idx in by_len.values():
-                U = np.stack([inputs[i][0] for i in idx])
-                z0 = np.stack([inputs[i][1] for i in idx])
-                pv = np.stack([inputs[i][2] for i in idx])
-                for i in idx:
-                    inputs[i] = None  # U holds them now
+            for i, (_, _, _, mans) in enumerate(setup):
+                by_len.setdefault(samples(prog.spec, mans[m]), []).append(i)
+            for n, idx in by_len.items():
+                U = np.empty((len(idx), n, prog.nin))  # filled in place, case by case
+                z0, pv = [], []
+                for q, i in enumerate(idx):
+                    true, sens, dist, mans = setup[i]
+                    if (i, n) not in noise:
+                        noise[(i, n)] = noise_matrix(sens, block[i].seed, n)
+                    _, z, p = prog.inputs(true, mans[m], dist, sens, block[i].seed, out=U[q], noise=noise[(i, n)])
+                    z0.append(z)
+                    pv.append(p)
+                z0, pv = np.array(z0), np.array(pv)
                 for j in range(len(points)):
                     Y, E = prog.run_batch(U, z0, pv, thetas[j][idx])
                     for q, i in enumerate(idx):

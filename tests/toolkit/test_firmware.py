@@ -350,13 +350,16 @@ def test_firmware_object_has_no_mutable_globals_heap_or_unbounded_stack(design_d
     assert undefined <= libm, undefined - libm  # no malloc/free, no I/O
     usage = (tmp_path / "fw.su").read_text().splitlines()
     assert usage and all(line.endswith("static") for line in usage)  # fixed frame sizes: no VLA, no alloca
-    # no recursion: evstab_step calls the schedule lookup and the two cores, which call only libm
+    # no recursion: evstab_step calls the segment lookup, the two tables' interpolations and the two
+    # cores, which call only libm and read data
     text = src.read_text()
-    for fn in ("evstab_schedule", "evstab_ecu_fix", "evstab_ecu_nofix"):
-        body = text[text.index(f"static void {fn}("):]
+    for fn in ("int evstab_segment", "void evstab_transition_rows", "void evstab_schedule_rows", "void evstab_ecu_fix",
+               "void evstab_ecu_nofix", "void evstab_ecu_nofix_moving"):
+        body = text[text.index(f"static {fn}("):]
         body = body[:body.index("\n}\n")]
         assert "evstab_" not in body.split("{", 1)[1].replace("evstab_real", "").replace("evstab_cal_", "") \
-            .replace("evstab_sched_", "").replace("evstab_input_t", "").replace("evstab_output_t", "")
+            .replace("evstab_sched_", "").replace("evstab_transition[", "").replace("evstab_input_t", "") \
+            .replace("evstab_output_t", "")
 
 
 def test_schedule_closed_form_errors():

@@ -21,7 +21,7 @@ import scipy.linalg
 
 from evstab.plants.backend import NUMPY
 from .core import posterior
-from .kalman import discretize
+from .kalman import transition_matrix
 from .spec import FilterDesign, continuous_model, gyro_row, process_noise_diag
 
 
@@ -90,9 +90,9 @@ def observability(d: FilterDesign, v: float, rtol: float = 1e-9) -> Observabilit
 
 
 def discrete_model(d: FilterDesign, v: float, dt: float):
-    """(F, Qd, C, R) the filter uses at speed ``v``: Taylor-4 discretisation, Qd = Q dt."""
-    A, _ = continuous_model(d, v, NUMPY)
-    F, _ = discretize(A, dt, NUMPY, d.n)
+    """(F, Qd, C, R) the filter uses at speed ``v`` (:func:`kalman.transition_matrix`: its transition
+    table, or the Taylor-4 discretisation), Qd = Q dt."""
+    F = transition_matrix(d, v, dt)
     Q = np.diag(process_noise_diag(d) * dt)
     C = measurement_rows(d, v)
     if d.hdop_noise:

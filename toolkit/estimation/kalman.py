@@ -40,6 +40,7 @@ import numpy as np
 
 from evstab.plants import G
 from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.errors import ModelError
 from evstab.plants.signals import Layout, Signal
 from .core import column as _col, diag as _diag, dot as _dot, predict_delta, scalar_update
 from .spec import LATERAL_STATES, FilterDesign, continuous_model, gyro_row, process_noise_diag
@@ -175,16 +176,32 @@ def discretize_delta(A, dt, o, n):
     return E, Gam
 
 
+def transition_matrix(d: FilterDesign, v: float, dt: float) -> np.ndarray:
+    """``F`` the filter propagates with at speed ``v`` over ``dt`` (numbers, for the analyses): the
+    design's transition table (:mod:`toolkit.estimation.transition`) as :func:`step` reads it, or
+    the Taylor series of the model at ``v``."""
+    if d.transition is not None:
+        nz = d.noise
+        E, _ = d.transition.matrices(max(v, nz.min_speed), dt, 1.0 if v >= nz.min_speed else 0.0)
+        return np.eye(d.n) + E
+    A, _ = continuous_model(d, v, NUMPY)
+    return discretize(A, dt, NUMPY, d.n)[0]
+
+
 def wrap(a, o):
     return o.arctan2(o.sin(a), o.cos(a))
 
 
-def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
+def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool = False):
     """One sample of the filter: ``(z, u) -> (z_next, y)`` with ``u`` per :data:`INPUTS`.
 
     ``with_course=False`` leaves out the course-update code; it gives exactly the
     result of the full step on a sample without a fix (``u[5] = 0``), so callers may
     use it there to save the work (the compiled runner switches between the two).
+
+    ``moving=True`` leaves out the standstill update: exact when the speed input is at least
+    ``standstill_speed`` (the update's gate is 0 then, and a zero gate leaves ``x`` and ``P`` as they
+    were), so the exported C calls that variant there.
     """
     n, lay, nz = d.n, layout(d), d.noise
     zs = lay.unpack(z)
@@ -200,7 +217,13 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     # 1. predict with the model rediscretised at this speed
     dyn = v >= nz.min_speed
     v_m = o.fmax(v, nz.min_speed)
-    A, B = continuous_model(d, v_m, o, dynamic=dyn)
+    tabulated = d.transition is not None
+    if tabulated:  # the ECU: the model discretised at export on the schedule's grid (toolkit.estimation.transition)
+        if d.kinematic or d.steer_noise:
+            raise ModelError(f"'{d.method}': a tabulated transition has no kinematic path or steer noise")
+        E, Gu = d.transition.matrices(v_m, dt, dyn, o)
+    else:
+        A, B = continuous_model(d, v_m, o, dynamic=dyn)
     uin = o.stack([steer, nzm])
     q = _col(process_noise_diag(d, symbolic=o is CASADI), o)
     if adapts(d):
@@ -216,15 +239,19 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
         # not while the estimate settles after the first fix (a departure then is not the tyres)
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
         A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
-    E, Gam = discretize_delta(A, dt, o, n)
+    if not tabulated:
+        E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
         excite = nz.excitation_floor + o.fabs(gyro) / nz.excitation_rate
         mask = np.zeros(n)
         for s in ("d1", "d2"):
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
-    drive = B @ uin if kin is None else B @ uin + kin
-    x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=Gam @ drive)
+    if tabulated:
+        w = Gu @ uin
+    else:
+        w = Gam @ (B @ uin if kin is None else B @ uin + kin)
+    x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=w)
     if d.steer_noise:  # seed 001: process noise enters through the steer input, Q_d ~ b q b^T dt
         b_st = B[:, 0]
         P = P + (b_st @ b_st.T if o is CASADI else np.outer(b_st, b_st)) * (nz.q_steer * dt)
@@ -235,7 +262,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True):
     x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok)
 
     # 3. standstill: the yaw rate is zero
-    if d.standstill_update:
+    if d.standstill_update and not moving:
         hs = _col(np.eye(n)[ir], o)
         # 0/1 (comparisons: see continuous_model on if_else); wheels at rest and the gyro quiet
         rate = gyro - x[d.index("gyro_bias")] if d.bias else gyro

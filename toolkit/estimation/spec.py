@@ -247,6 +247,10 @@ class FilterDesign:
     kinematic: bool = False
     """Blend the kinematic sideslip rate ``a_y / v - r`` into the sideslip row where the measured lateral
     acceleration departs from the linear model's (the tyres saturated; :func:`toolkit.estimation.kalman.step`)."""
+    transition: object = None
+    """A :class:`toolkit.estimation.transition.Transition`: the ECU's filter propagates with its model
+    discretised at export time on the schedule's grid for the control period (firmware); None: the
+    4th-order Taylor series at the current speed every sample."""
 
     @property
     def n(self) -> int:

@@ -125,14 +125,37 @@ def source(d: EcuDesign, p: Precision, info: dict) -> str:
     parts.append(f"EVSTAB_CALIBRATION evstab_real {names['inv_speed']}[{n}] = {c_array(sched.inv_speed, p)};")
     for r, row in enumerate(ROWS):
         parts.append(f"EVSTAB_CALIBRATION evstab_real {names[row]}[{n}] = {c_array(sched.table[r], p)};")
+    tr = d.transition
+    nf, nc = d.n_schedule_inputs
+    parts.append(f"\n/* ---- the filter's transition over one control period ({d.filter.dt_nominal:g} s) on the schedule's "
+                 "grid:\n * E = e^(A T) - I and G = int_0^T e^(A s) ds B at each grid point, derived from the rows above by "
+                 "`evstab export`\n * (recalibrating those rows changes the controller's model, not these) ---- */")
+    parts.append(f"static const evstab_real {PREFIX}_transition[{nf}][{n}] = {{\n    "
+                 + ",\n    ".join(f"{c_array(row, p)} /* {name} */" for name, row in zip(tr.names, tr.table.table))
+                 + "};")
     parts.append(f"\n/* ---- initial state (evstab_init) ---- */\nstatic const evstab_real {PREFIX}_state0"
                  f"[EVSTAB_STATE_SIZE] = {c_array(d.initial_state(), p)};")
     lerp = "\n".join(f"    rows[{r}] = {names[row]}[lo] + t * ({names[row]}[lo + 1] - {names[row]}[lo]);"
                      for r, row in enumerate(ROWS))
     parts.append(f"""
-/* The schedule's rows at speed v (v > 0): linear in x = 1/v on the segment holding x, which is
-   the last period's (*seg) while x stays on it, else found by bisection (the same segment either way). */
-static void {PREFIX}_schedule(evstab_real v, evstab_real *rows, int *seg)
+/* The filter's transition rows on segment lo at t (the schedule's rule, as below). */
+static void {PREFIX}_transition_rows(int lo, evstab_real t, evstab_real *rows)
+{{
+    int r;
+    for (r = 0; r < {nf}; r++) {{
+        rows[r] = {PREFIX}_transition[r][lo] + t * ({PREFIX}_transition[r][lo + 1] - {PREFIX}_transition[r][lo]);
+    }}
+}}
+
+/* The schedule's rows on segment lo at t. */
+static void {PREFIX}_schedule_rows(int lo, evstab_real t, evstab_real *rows)
+{{
+{lerp}
+}}
+
+/* The segment of the speed grid holding x = 1/v (v > 0) and the position t in it: the last
+   period's (*seg) while x stays on it, else found by bisection (the same segment either way). */
+static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
 {{
     const volatile evstab_real *ax = {names['inv_speed']};
     evstab_real x = {p.literal(1.0)} / v;
@@ -160,7 +183,8 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows, int *seg)
     x0 = ax[lo];
     x1 = ax[lo + 1];
     t = (x - x0) / (x1 - x0);
-{lerp}
+    *t_out = t;
+    return lo;
 }}
 """)
     cal_syms = [names[c.name] for c in cal]
@@ -178,13 +202,17 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows, int *seg)
 
     reads = [lambda k: f"z[{k}]", read_input, lambda k: f"sch[{k}]", lambda k: cal_syms[k]]
     writes = [lambda k: f"zn[{k}]", lambda k: f"out->{out_names[k]}"]
-    for fn in traced_steps(d):
+    moving = bool(d.filter.standstill_update)
+    for fn in traced_steps(d, moving=moving):
         body = emit_body(fn, reads, writes, p)
         parts.append(f"static void {PREFIX}_{fn.name()}(const evstab_real *z, const evstab_input_t *in, "
                      f"const evstab_real *sch,\n        evstab_real *zn, evstab_output_t *out)\n{{")
         parts.append("    (void)z; (void)in; (void)sch; (void)zn; (void)out;")
         parts.extend(body)
         parts.append("}\n")
+    moving_branch = (f""" else if (in->speed >= {p.literal(float(d.filter.noise.standstill_speed))}) {{ /* no standstill """
+                     f"""update: its gate is 0 */\n        {PREFIX}_ecu_nofix_moving(s->z, in, sch, zn, out);\n    }}"""
+                     if moving else "")
     parts.append(f"""void evstab_init(evstab_state_t *s)
 {{
     memcpy(s->z, {PREFIX}_state0, sizeof s->z);
@@ -193,19 +221,20 @@ static void {PREFIX}_schedule(evstab_real v, evstab_real *rows, int *seg)
 
 void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *out)
 {{
-    evstab_real sch[{2 * len(ROWS)}];
+    evstab_real sch[{nf + nc}]; /* the filter's transition rows, then the schedule's */
     evstab_real zn[EVSTAB_STATE_SIZE];
+    evstab_real t;
     const evstab_real vf = {p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED);
     const evstab_real vc = {p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED);
-    {PREFIX}_schedule(vf, sch, &s->seg[0]);
-    if (vc == vf) {{ /* above both minimum speeds: one lookup serves both */
-        memcpy(sch + {len(ROWS)}, sch, {len(ROWS)} * sizeof sch[0]);
-    }} else {{
-        {PREFIX}_schedule(vc, sch + {len(ROWS)}, &s->seg[1]);
+    int lo = {PREFIX}_segment(vf, &s->seg[0], &t);
+    {PREFIX}_transition_rows(lo, t, sch);
+    if (vc != vf) {{ /* below a minimum speed: the controller reads at its own */
+        lo = {PREFIX}_segment(vc, &s->seg[1], &t);
     }}
+    {PREFIX}_schedule_rows(lo, t, sch + {nf});
     if (in->gps_valid != 0) {{
         {PREFIX}_ecu_fix(s->z, in, sch, zn, out);
-    }} else {{
+    }}{moving_branch} else {{
         {PREFIX}_ecu_nofix(s->z, in, sch, zn, out);
     }}
     memcpy(s->z, zn, sizeof zn);

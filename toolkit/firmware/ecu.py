@@ -41,6 +41,7 @@ from evstab.plants.signals import Layout, Signal
 from ..compiled import with_fields
 from ..estimation import kalman
 from ..estimation.spec import LOOP_METHODS, FilterDesign
+from ..estimation.transition import Transition, build_transition
 
 INPUTS = Layout("ECU inputs", [
     Signal("dt", "s", "time since the previous step (the control period)"),
@@ -169,6 +170,10 @@ class EcuDesign:
                              "with design_filter(..., control=True)")
         if not isinstance(self.controller.schedule, SpeedSchedule) or self.filter.schedule != self.controller.schedule:
             raise ModelError("the ECU's filter and controller must carry the same speed schedule")
+        # the filter propagates with its model discretised on the schedule's grid for the control period
+        tr = build_transition(self.filter, self.filter.schedule, self.filter.dt_nominal)
+        if self.filter.transition != tr:
+            object.__setattr__(self, "filter", dataclasses.replace(self.filter, transition=tr))
         if not np.isfinite(self.controller.nz_max):
             raise ModelError("the controller's yaw_moment_max is not finite: give the vehicle max_motor_torque, "
                              "track_rear and wheel_radius (or set yaw_moment_max)")
@@ -208,11 +213,23 @@ class EcuDesign:
         """Speeds [m/s] below which the filter and the controller read the schedule at that speed."""
         return float(self.filter.noise.min_speed), float(self.controller.min_speed)
 
+    @property
+    def transition(self) -> Transition:
+        """The filter's transition table (:mod:`toolkit.estimation.transition`)."""
+        return self.filter.transition
+
+    @property
+    def n_schedule_inputs(self) -> tuple[int, int]:
+        """How many table rows the step reads: the filter's transition rows, the controller's schedule rows."""
+        return len(self.transition.e_entries) + len(self.transition.g_entries), len(ROWS)
+
     def schedule_inputs(self, speed) -> np.ndarray:
-        """The schedule's rows for the filter and the controller at ``speed`` (scalar or array): (..., 2 * 9)."""
+        """The tables' rows at ``speed`` (scalar or array): the filter's transition rows at the filter's
+        speed, then the schedule's rows (:data:`ROWS`) at the controller's: (..., sum of
+        :attr:`n_schedule_inputs`)."""
         v = np.asarray(speed, float)
         e, c = self.min_speeds
-        se = self.schedule.values(np.fmax(v, e))
+        se = self.transition.table.values(np.fmax(v, e))
         sc = self.schedule.values(np.fmax(v, c))
         return np.stack(list(se) + list(sc), axis=-1)
 
@@ -269,13 +286,14 @@ class _Rows:
 
 
 def with_schedule_rows(d: EcuDesign, sched) -> EcuDesign:
-    """``d`` with both schedules replaced by rows already read at this step's speed (``sched``: the
-    18 values of :meth:`EcuDesign.schedule_inputs`, numbers or symbols); None keeps the tables."""
+    """``d`` with its tables replaced by rows already read at this step's speeds (``sched``: the values of
+    :meth:`EcuDesign.schedule_inputs`, numbers or symbols); None keeps the tables."""
     if sched is None:
         return d
-    nr = len(ROWS)
-    return with_fields(d, filter=with_fields(d.filter, schedule=_Rows(sched[i] for i in range(nr))),
-                       controller=with_fields(d.controller, schedule=_Rows(sched[nr + i] for i in range(nr))))
+    nf, nc = d.n_schedule_inputs
+    tr = with_fields(d.transition, table=_Rows(sched[i] for i in range(nf)))
+    return with_fields(d, filter=with_fields(d.filter, transition=tr),
+                       controller=with_fields(d.controller, schedule=_Rows(sched[nf + i] for i in range(nc))))
 
 
 def state_layout(f: FilterDesign) -> Layout:
@@ -293,7 +311,7 @@ def filter_part(lay: Layout) -> slice:
     return slice(0, lay.index("controller"))
 
 
-def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
+def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True, moving: bool = False):
     """The filter part of the step: ``(z_est, u) -> (z_est_next, estimates)``, estimates a dict of
     ``beta, yaw_rate, yaw, d1, d2, gyro_bias, beta_std, gps_used`` (0 for states the filter lacks)."""
     g = INPUTS.as_dict(u)
@@ -301,7 +319,7 @@ def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True):
     u_est = kalman.INPUTS.pack(o=o, dt=g["dt"], speed=g["speed"], steer=g["steer"], yaw_moment=g["yaw_moment_applied"],
                                yaw_rate=g["yaw_rate"], fix=valid, course=valid * g["gps_course"], hdop=g["gps_hdop"],
                                sats=g["gps_sats"], ay=g["ay"])
-    z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course)
+    z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course, moving=moving)
     est = kalman.OUTPUTS.as_dict(y)
     zero = 0.0 * g["speed"]
     for name, present in (("d1", "d1" in d.filter.states), ("d2", "d2" in d.filter.states),
@@ -371,29 +389,34 @@ def rear_torques(d: EcuDesign, yaw_moment, o=NUMPY):
     return -diff, diff
 
 
-def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True):
+def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, moving: bool = False):
     """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
 
-    ``sched``: the 18 values of :meth:`EcuDesign.schedule_inputs` for this step (numbers
-    or symbols); None reads the schedule here. ``with_course=False`` leaves out the course
-    update (exact on a step without a fix, see :func:`kalman.step`).
+    ``sched``: the values of :meth:`EcuDesign.schedule_inputs` for this step (numbers or
+    symbols); None reads the tables here. ``with_course=False`` leaves out the course update
+    (exact on a step without a fix), ``moving=True`` the standstill update (exact at a speed of
+    at least the filter's ``standstill_speed``; see :func:`kalman.step`).
     """
     d = with_schedule_rows(d, sched)
     lay = d.layout
-    z_est_n, est = ecu_estimate(d, z[filter_part(lay)], u, o, with_course)
+    z_est_n, est = ecu_estimate(d, z[filter_part(lay)], u, o, with_course, moving)
     z_ctl_n, out = ecu_control(d, z[lay.span("controller", "supervisor")], u, est, o)
     return o.concat([z_est_n, z_ctl_n]), out
 
 
-def traced_steps(d: EcuDesign):
-    """casadi SX functions ``(z, u, sched, cal) -> (z_next, y)`` without and with the course update."""
+def traced_steps(d: EcuDesign, moving: bool = False):
+    """casadi SX functions ``(z, u, sched, cal) -> (z_next, y)`` without and with the course update;
+    with ``moving`` a third, without the course and the standstill update (``ecu_nofix_moving``: the
+    step of a period without a fix at a speed of at least the filter's ``standstill_speed``)."""
     import casadi as ca
     out = []
-    for with_course in (False, True):
+    variants = [("ecu_nofix", False, False), ("ecu_fix", True, False)]
+    if moving:
+        variants.append(("ecu_nofix_moving", False, True))
+    for name, with_course, mv in variants:
         z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
-        s, cal = ca.SX.sym("sched", 2 * len(ROWS)), ca.SX.sym("cal", len(d.calibration()))
+        s, cal = ca.SX.sym("sched", sum(d.n_schedule_inputs)), ca.SX.sym("cal", len(d.calibration()))
         bound = d.bind([cal[i] for i in range(cal.shape[0])])
-        zn, y = ecu_step(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course)
-        name = "ecu_fix" if with_course else "ecu_nofix"
+        zn, y = ecu_step(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course, moving=mv)
         out.append(ca.Function(name, [z, u, s, cal], [zn, y], ["z", "u", "sched", "cal"], ["z_next", "y"]))
     return tuple(out)

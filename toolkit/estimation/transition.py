@@ -1,0 +1,154 @@
+"""The ECU filter's transition over one control period, tabulated on the speed schedule's grid.
+
+A filter without tables re-discretises its lateral model at the current speed every period
+(:func:`toolkit.estimation.kalman.discretize_delta`, a 4th-order Taylor series: about a
+quarter of the ECU step's arithmetic). The ECU's filter runs at one period ``T`` and reads
+its model from the speed schedule anyway, so the discretisation is done once, at export
+time, for every grid point of the schedule: exactly (the matrix exponential's series summed
+to rounding), from that grid point's coefficient rows. Per period the filter then
+interpolates
+
+* ``E = e^(A T) - I`` (its structurally non-zero entries: the sideslip, yaw-rate and heading
+  rows; the disturbances' own decay is one constant row pair), and
+* ``G = (int_0^T e^(A s) ds) B`` (the inputs' effect over the period),
+
+linearly in ``1 / v`` by the schedule's rule (:data:`controllers.schedule.RULE`). Below the
+filter's minimum speed the lateral model is held (``psi' = r`` only, as
+:func:`toolkit.estimation.spec.continuous_model` holds it).
+
+A period ``dt`` other than ``T`` scales both by ``dt / T`` (first order in the jitter:
+the error in ``F`` is at most ``|dt / T - 1| |A T|^2 / 2`` per entry).
+
+Accuracy (measured by ``tests/toolkit/test_transition.py``): at the grid points the table
+equals scipy's ``expm`` to 1e-15 relative; between them the interpolated ``E`` differs from
+the Taylor step at the interpolated coefficients by the interpolation error of the
+coefficients themselves (the schedule's own ``max_error``), and a closed-loop log with the
+tabulated step differs from the Taylor step's by the bounds that test asserts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from evstab.controllers.schedule import SpeedTable
+from evstab.plants.backend import NUMPY
+from evstab.plants.errors import ModelError
+
+SERIES_TERMS = 30
+"""Terms of the exponential's series at a grid point: ``|A T| < 1`` for every bundled vehicle at
+1 kHz, so 30 terms leave a remainder far below double rounding (checked against ``expm``)."""
+
+
+@dataclass(frozen=True)
+class Transition:
+    """``E`` and ``G`` entries of one filter on a speed grid, for the control period ``dt``."""
+
+    dt: float
+    """The control period ``T`` [s] the table is for."""
+    n: int
+    """The filter's state count."""
+    e_entries: tuple[tuple[int, int], ...]
+    """(row, column) of the tabulated entries of ``E``."""
+    g_entries: tuple[tuple[int, int], ...]
+    """(row, input) of the tabulated entries of ``G`` (inputs: steer, yaw moment)."""
+    table: object
+    """A :class:`controllers.schedule.SpeedTable` with the ``E`` rows then the ``G`` rows (or, inside a
+    traced ECU step, the rows already read at this period's speed)."""
+    held: tuple[tuple[int, int, float], ...]
+    """(row, column, value) of ``E`` with the lateral model held (below the minimum speed)."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Row names: ``E_i_j`` and ``G_i_k`` (state and input indices)."""
+        return tuple(f"E_{i}_{j}" for i, j in self.e_entries) + tuple(f"G_{i}_{k}" for i, k in self.g_entries)
+
+    def matrices(self, v, dt, dynamic, o=NUMPY):
+        """``(E, G)`` at speed ``v`` (the filter's, already at least its minimum speed) for the period
+        ``dt``; ``dynamic`` 0/1 (number or symbol): the lateral model acts (1) or is held (0)."""
+        rows = self.table.values(v, o)
+        r = dt * (1.0 / self.dt)  # 1 at the control period
+        on = r * dynamic  # r or 0: one product per entry
+        off = r * (1.0 - dynamic)
+        held = {(i, j): h for i, j, h in self.held}
+        E = o.zeros(self.n, self.n)
+        for (i, j), val in zip(self.e_entries, rows):
+            h = held.get((i, j), 0.0)
+            E[i, j] = on * val if h == 0.0 else on * val + off * h
+        G = o.zeros(self.n, 2)
+        for (i, k), val in zip(self.g_entries, rows[len(self.e_entries):]):
+            G[i, k] = on * val
+        for i, j, h in self.held:  # held entries the moving model lacks
+            if (i, j) not in self.e_entries:
+                E[i, j] = off * h
+        return E, G
+
+
+def exact_discretisation(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(e^(A dt) - I, int_0^dt e^(A s) ds B)`` by the exponential's series to :data:`SERIES_TERMS` terms
+    (``E`` without forming ``I + ...``, as the filter propagates it)."""
+    M = np.asarray(A, float) * dt
+    if np.abs(M).sum(axis=1).max() >= 1.0:
+        raise ModelError(f"transition table: |A dt| = {np.abs(M).sum(axis=1).max():.3g} >= 1; the series would "
+                         "converge slowly (a control period this long needs scaling and squaring)")
+    n = M.shape[0]
+    term = np.eye(n)
+    E = np.zeros((n, n))
+    gam = np.eye(n) * dt
+    for k in range(1, SERIES_TERMS):
+        term = term @ M / k  # M^k / k!
+        E = E + term
+        gam = gam + term * (dt / (k + 1))
+    return E, gam @ np.asarray(B, float)
+
+
+def build_transition(d, schedule, dt: float) -> Transition:
+    """The transition table of filter design ``d`` on ``schedule``'s grid (its coefficient rows at
+    each grid point) for the control period ``dt``."""
+    key = (d.states, d.disturbance, float(d.noise.disturbance_tau), schedule, float(dt))
+    return _build(*key)
+
+
+@lru_cache(maxsize=32)
+def _build(states, disturbance, tau, schedule, dt) -> Transition:
+    from .spec import continuous_model
+    shim = _Shim(states, disturbance, tau, schedule)
+    Es, Gs = [], []
+    for x in schedule.inv_speed:
+        A, B = continuous_model(shim, 1.0 / x, NUMPY, dynamic=True)
+        E, G = exact_discretisation(A, B, dt)
+        Es.append(E)
+        Gs.append(G)
+    Es, Gs = np.array(Es), np.array(Gs)
+    e_idx = tuple((int(i), int(j)) for i, j in zip(*np.nonzero(np.any(Es != 0.0, axis=0))))
+    g_idx = tuple((int(i), int(k)) for i, k in zip(*np.nonzero(np.any(Gs != 0.0, axis=0))))
+    rows = [tuple(float(v) for v in Es[:, i, j]) for i, j in e_idx] + \
+        [tuple(float(v) for v in Gs[:, i, k]) for i, k in g_idx]
+    A0, B0 = continuous_model(shim, 1.0, NUMPY, dynamic=False)
+    E0, _ = exact_discretisation(A0, B0, dt)
+    held = tuple((int(i), int(j), float(E0[i, j])) for i, j in zip(*np.nonzero(E0)))
+    return Transition(float(dt), len(states), e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held)
+
+
+@dataclass(frozen=True)
+class _Shim:
+    """What :func:`toolkit.estimation.spec.continuous_model` reads of a design."""
+
+    states: tuple
+    disturbance: str | None
+    tau: float
+    schedule: object
+
+    @property
+    def n(self) -> int:
+        return len(self.states)
+
+    def index(self, name: str) -> int:
+        return self.states.index(name)
+
+    @property
+    def noise(self):
+        from types import SimpleNamespace
+        return SimpleNamespace(disturbance_tau=self.tau)
