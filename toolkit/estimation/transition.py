@@ -28,8 +28,8 @@ tabulated step differs from the Taylor step's by the bounds that test asserts.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -106,18 +106,24 @@ def exact_discretisation(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.nd
 
 def build_transition(d, schedule, dt: float) -> Transition:
     """The transition table of filter design ``d`` on ``schedule``'s grid (its coefficient rows at
-    each grid point) for the control period ``dt``."""
+    each grid point) for the control period ``dt`` (cached by what it depends on)."""
     key = (d.states, d.disturbance, float(d.noise.disturbance_tau), schedule, float(dt))
-    return _build(*key)
+    hit = _CACHE.get(key)
+    if hit is None:
+        if len(_CACHE) > 32:
+            _CACHE.clear()
+        hit = _CACHE[key] = _build(dataclasses.replace(d, schedule=schedule, transition=None), schedule, float(dt))
+    return hit
 
 
-@lru_cache(maxsize=32)
-def _build(states, disturbance, tau, schedule, dt) -> Transition:
+_CACHE: dict = {}
+
+
+def _build(d, schedule, dt: float) -> Transition:
     from .spec import continuous_model
-    shim = _Shim(states, disturbance, tau, schedule)
     Es, Gs = [], []
     for x in schedule.inv_speed:
-        A, B = continuous_model(shim, 1.0 / x, NUMPY, dynamic=True)
+        A, B = continuous_model(d, 1.0 / x, NUMPY, dynamic=True)
         E, G = exact_discretisation(A, B, dt)
         Es.append(E)
         Gs.append(G)
@@ -126,29 +132,7 @@ def _build(states, disturbance, tau, schedule, dt) -> Transition:
     g_idx = tuple((int(i), int(k)) for i, k in zip(*np.nonzero(np.any(Gs != 0.0, axis=0))))
     rows = [tuple(float(v) for v in Es[:, i, j]) for i, j in e_idx] + \
         [tuple(float(v) for v in Gs[:, i, k]) for i, k in g_idx]
-    A0, B0 = continuous_model(shim, 1.0, NUMPY, dynamic=False)
+    A0, B0 = continuous_model(d, 1.0, NUMPY, dynamic=False)
     E0, _ = exact_discretisation(A0, B0, dt)
     held = tuple((int(i), int(j), float(E0[i, j])) for i, j in zip(*np.nonzero(E0)))
-    return Transition(float(dt), len(states), e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held)
-
-
-@dataclass(frozen=True)
-class _Shim:
-    """What :func:`toolkit.estimation.spec.continuous_model` reads of a design."""
-
-    states: tuple
-    disturbance: str | None
-    tau: float
-    schedule: object
-
-    @property
-    def n(self) -> int:
-        return len(self.states)
-
-    def index(self, name: str) -> int:
-        return self.states.index(name)
-
-    @property
-    def noise(self):
-        from types import SimpleNamespace
-        return SimpleNamespace(disturbance_tau=self.tau)
+    return Transition(float(dt), d.n, e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held)
