@@ -79,8 +79,8 @@ def _controller_dict(d: TwoDofDesign) -> dict:
 
 def _estimator_dict(f: FilterDesign) -> dict:
     return {"method": f.method, "states": list(f.states), "latency_s": f.latency, "antenna_x_m": f.antenna_x,
-            "dt_s": f.dt_nominal, "noise": {k.name: float(getattr(f.noise, k.name))
-                                             for k in dataclasses.fields(f.noise)}}
+            "dt_s": f.dt_nominal, "kinematic": bool(f.kinematic),
+            "noise": {k.name: float(getattr(f.noise, k.name)) for k in dataclasses.fields(f.noise)}}
 
 
 def design_document(cfg: sw.SweepConfig, tuned: sw.DesignPoint, paper: sw.DesignPoint, summary: dict,
@@ -170,7 +170,7 @@ def load_design(path) -> LoadedDesign:
         est = doc["estimator"]
         noise = NoiseSettings(**est["noise"])
         fd = design_filter(est["method"], params, noise, latency=est["latency_s"], antenna_x=est["antenna_x_m"],
-                           dt=est["dt_s"], control=True)
+                           dt=est["dt_s"], control=True, kinematic=bool(est.get("kinematic", False)))
         c = dict(doc["controller"])
         ctl = TwoDofDesign(params, **{k: v for k, v in c.items() if k != "yaw_moment_max"},
                            yaw_moment_max=c["yaw_moment_max"])
@@ -414,7 +414,7 @@ def _limit_summary(limit_rows: list[dict]) -> dict:
 
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
-               plant: str = "two-track", noise: NoiseSettings | None = None) -> dict:
+               plant: str = "two-track", noise: NoiseSettings | None = None, kinematic: bool = False) -> dict:
     """``evstab design``: the whole job, written into ``out`` (see the module notes).
 
     Parameters
@@ -444,6 +444,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     noise : NoiseSettings, optional
         The filter's noise settings (``evstab design --noise FILE``, a file ``evstab estimate
         --tune`` wrote); the paper design starts from its process-noise intensities.
+    kinematic : bool
+        The ECU's filter with the kinematic sideslip path (``evstab design --kinematic-path``).
 
     Returns
     -------
@@ -464,7 +466,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     if out.exists() and not out.is_dir():
         raise DesignError(f"{out}: exists and is not a folder; --out names the design folder to write")
     params = load_vehicle(vehicle)
-    cfg = sw.SweepConfig(params, plant=plant, noise=noise)
+    cfg = sw.SweepConfig(params, plant=plant, noise=noise, kinematic=kinematic)
     cases = sw.sweep_cases(quick=quick, plant=plant)
     paper = cfg.paper
     log(f"evstab design: {params.name} on {plant}, {len(cases)} model-error cases, {'quick' if quick else 'full'} run")

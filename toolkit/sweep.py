@@ -144,6 +144,8 @@ class SweepConfig:
     noise: NoiseSettings | None = None
     """The filter's noise settings (a noise file's, :func:`toolkit.estimation.noise_fit.load_noise`);
     None: the method's defaults. The paper point starts from their process-noise intensities."""
+    kinematic: bool = False
+    """The ECU's filter with the kinematic sideslip path (:func:`toolkit.estimation.spec.design_filter`)."""
 
     @property
     def paper(self) -> "DesignPoint":
@@ -159,7 +161,7 @@ class SweepConfig:
 
     def filter_design(self, point: DesignPoint) -> FilterDesign:
         base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency,
-                             control=True)
+                             control=True, kinematic=self.kinematic or None)
         return dataclasses.replace(base, noise=point.noise(base.noise))
 
     def spec(self):

@@ -111,3 +111,40 @@ def test_a_closed_loop_log_through_the_tabulated_and_the_taylor_ecu():
     # the yaw-moment peak; measured 30x below
     assert diff["beta"] <= 1e-5 and diff["steer_cmd"] <= 1e-5
     assert diff["yaw_moment_cmd"] <= 1e-3 * peak_nz
+
+
+def test_the_kinematic_path_on_the_table_blends_to_first_order():
+    """A filter with the kinematic sideslip path on the ECU: the table also holds the model's sideslip
+    row (continuous, what the path compares the accelerometer with), and the blend on E and G is the
+    exact discretisation of the blended model up to second-order terms in the period."""
+    from evstab.toolkit.estimation import kalman
+    p = load_vehicle("compact-ev")
+    d = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=True), TwoDofDesign(p.as_nominal()))
+    f, tr = d.filter, d.filter.transition
+    ib, ir = f.index("beta"), f.index("yaw_rate")
+    T = f.dt_nominal
+    for k, x in enumerate(tr.table.inv_speed[::7]):
+        A, B = continuous_model(f, 1.0 / x, NUMPY)
+        a, b = tr.continuous(tr.table.values(1.0 / x), 1.0)
+        for (i, j), val in a.items():  # the grid point's value to the interpolation's rounding
+            assert i == ib and abs(val - A[i, j]) <= 1e-12 * max(1.0, abs(A[i, j]))
+        assert set(a) == {(ib, j) for j in np.nonzero(A[ib])[0]} and set(b) == {(ib, c) for c in np.nonzero(B[ib])[0]}
+    v = 20.0
+    A, B = continuous_model(f, v, NUMPY)
+    E, Gu = tr.matrices(v, T, 1.0)
+    aT = np.abs(A * T).sum(axis=1).max()  # |A T| (infinity norm), 0.03 here
+    for w in (0.0, 0.3, 1.0):
+        Eb, Gb = kalman._kinematic_transition(f, E, Gu, w, T, NUMPY)
+        Ab, Bb = A.copy(), B.copy()
+        Ab[[ib, ir]] *= 1.0 - w
+        Bb[[ib, ir]] *= 1.0 - w
+        Ab[ib, ir] -= w
+        Ex, Gx = exact_discretisation(Ab, Bb, T)
+        if w == 0.0:
+            np.testing.assert_array_equal(Eb, E)  # the path off: the table itself
+        # E ~ A T: the blend differs by (A T)^2 terms; G ~ B T: by terms of |A T| relative (measured
+        # at w 0.3: 3.4e-5 in E against a bound of 9.3e-4, 7.2e-4 of G's largest entry); + the table's
+        # interpolation. At w 1 the model's rows are gone and the kinematics are exact (measured 0).
+        scale = 1e-12 if w == 1.0 else 1.0
+        assert np.abs(Eb - Ex).max() <= scale * aT ** 2 + 1e-4 * np.abs(Ex).max()
+        assert np.abs(Gb - Gx).max() <= scale * (aT + 1e-4) * np.abs(Gu).max()

@@ -219,9 +219,10 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     v_m = o.fmax(v, nz.min_speed)
     tabulated = d.transition is not None
     if tabulated:  # the ECU: the model discretised at export on the schedule's grid (toolkit.estimation.transition)
-        if d.kinematic or d.steer_noise:
-            raise ModelError(f"'{d.method}': a tabulated transition has no kinematic path or steer noise")
-        E, Gu = d.transition.matrices(v_m, dt, dyn, o)
+        if d.steer_noise:
+            raise ModelError(f"'{d.method}': a tabulated transition has no steer noise")
+        rows = d.transition.table.values(v_m, o)
+        E, Gu = d.transition.matrices(v_m, dt, dyn, o, rows=rows)
     else:
         A, B = continuous_model(d, v_m, o, dynamic=dyn)
     uin = o.stack([steer, nzm])
@@ -238,7 +239,14 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
-        A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
+        if tabulated:
+            a_c, b_c = d.transition.continuous(rows, dyn, o)
+            w_kin, q, kin, kin_state = _kinematic_weight(
+                d, [a_c.get((ib, j), 0.0) for j in range(n)], [b_c.get((ib, k), 0.0) for k in (0, 1)], q, x, uin,
+                g, v_m, settled, zs.kin, o)
+            E, Gu = _kinematic_transition(d, E, Gu, w_kin, dt, o)
+        else:
+            A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
     if not tabulated:
         E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
@@ -248,7 +256,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
             mask[d.index(s)] = 1.0
         q = q * (_col(1.0 - mask, o) + _col(mask, o) * excite)
     if tabulated:
-        w = Gu @ uin
+        w = Gu @ uin if kin is None else Gu @ uin + kin * dt  # the kinematic drive to first order
     else:
         w = Gam @ (B @ uin if kin is None else B @ uin + kin)
     x, P = predict_delta(x, P, E, _diag(q * dt, o), o, n, w=w)
@@ -412,11 +420,54 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
     ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
     ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins).
     Returns ``(A, B, q, kinematic drive, next state per KINEMATIC)``."""
+    n = d.n
+    ib, ir = d.index("beta"), d.index("yaw_rate")
+    w, q, kin, state = _kinematic_weight(d, [A[ib, j] for j in range(n)], [B[ib, 0], B[ib, 1]], q, x, uin, g, v_m,
+                                         dyn, kin_state, o)
+    keep = 1.0 - w
+    if o is not CASADI:
+        A, B = A.copy(), B.copy()
+    # both lateral rows leave the tyre model: beta' from the kinematics, r' a random walk that the gyro
+    # pins (left on the model, the gyro's innovations would reach the sideslip through a21)
+    for i in (ib, ir):
+        for j in range(n):
+            A[i, j] = A[i, j] * keep
+        B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
+    A[ib, ir] = A[ib, ir] - w
+    return A, B, q, kin, state
+
+
+def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o):
+    """:func:`_kinematic_blend` on a tabulated transition (:mod:`toolkit.estimation.transition`): the
+    sideslip, yaw-rate and heading rows of ``E`` and ``G`` (the heading's through the yaw rate's)
+    scaled by ``1 - w``, and what the kinematics alone give added: ``-w dt`` where ``beta'`` takes
+    ``-r``, ``w dt`` where ``psi'`` takes ``r``. Exact for ``w`` 0 and 1; between them the blend of
+    the discretisations differs from the discretisation of the blend by terms of ``(A dt)^2``
+    (``tests/toolkit/test_transition.py``), far below the path's own modelling error."""
+    n = d.n
+    ib, ir = d.index("beta"), d.index("yaw_rate")
+    keep = 1.0 - w
+    if o is not CASADI:
+        E, Gu = E.copy(), Gu.copy()
+    rows = (ib, ir, d.index("yaw")) if "yaw" in d.states else (ib, ir)
+    for i in rows:
+        for j in range(n):
+            E[i, j] = E[i, j] * keep
+        Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
+    E[ib, ir] = E[ib, ir] - w * dt
+    if "yaw" in d.states:
+        E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w * dt
+    return E, Gu
+
+
+def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
+    """The kinematic path's weight ``w`` (see :func:`_kinematic_blend`) from the model's sideslip row
+    ``a_row`` (continuous ``A``) and ``b_row`` (``B``); returns ``(w, q, kinematic drive, next state)``."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
     ks = KINEMATIC.unpack(kin_state)
     ay, roll = _lateral_acceleration(d, g, ks, o)
-    a_model = v_m * (_dot(_col([A[ib, j] for j in range(n)], o), x, o) + B[ib, 0] * uin[0] + B[ib, 1] * uin[1] + x[ir])
+    a_model = v_m * (_dot(_col(a_row, o), x, o) + b_row[0] * uin[0] + b_row[1] * uin[1] + x[ir])
     dev = ks.dev + (o.fabs(ay - a_model) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
     # peak hold with an exponential decay: rises with |a_y| at once, falls with kinematic_quiet_tau
     level = o.fmax(o.fabs(ay), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
@@ -434,20 +485,11 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
     offset = ks.ay_offset + straight * (g.ay - G * o.sin(roll) - ks.ay_offset) * o.fmin(
         g.dt / nz.kinematic_offset_tau, 1.0)
     keep = 1.0 - w
-    if o is not CASADI:
-        A, B = A.copy(), B.copy()
-    # both lateral rows leave the tyre model: beta' from the kinematics, r' a random walk that the gyro
-    # pins (left on the model, the gyro's innovations would reach the sideslip through a21)
-    for i in (ib, ir):
-        for j in range(n):
-            A[i, j] = A[i, j] * keep
-        B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
-    A[ib, ir] = A[ib, ir] - w
     e_b, e_r = np.eye(n)[ib], np.eye(n)[ir]
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
-    return A, B, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
+    return w, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
 
 
 def _adapt(d: FilterDesign, qscale, nis, accept, o):

@@ -298,23 +298,27 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
                   latency: float = 0.0, antenna_x: float = 0.0, dt: float = 1e-3,
-                  nominal: bool = True, control: bool = False) -> FilterDesign:
+                  nominal: bool = True, control: bool = False, kinematic: bool | None = None) -> FilterDesign:
     """Design a filter for ``params`` (its nominal version unless ``nominal=False``).
 
     ``control``: the ECU's filter (the stability loop, the design job, firmware export):
-    :data:`CONTROL_NOISE` unless ``noise`` is given, and no kinematic path. Otherwise
-    the methods of :data:`KINEMATIC_METHODS` estimate with :func:`estimation_noise` (unless
-    ``noise`` is given) and the kinematic sideslip path."""
+    :data:`CONTROL_NOISE` unless ``noise`` is given, and no kinematic path unless ``kinematic``.
+    Otherwise the methods of :data:`KINEMATIC_METHODS` estimate with :func:`estimation_noise`
+    (unless ``noise`` is given) and the kinematic sideslip path. ``kinematic`` (those methods
+    only): the path on or off whatever ``control`` says."""
     if method not in METHODS:
         raise ModelError(f"unknown estimation method '{method}'; known: {', '.join(METHODS)}")
     if not (np.isfinite(latency) and 0 <= latency <= 0.5):
         raise ModelError(f"GPS latency must be between 0 and 0.5 s, got {latency!r}")
     p = params.as_nominal() if nominal else params
-    kinematic = method in KINEMATIC_METHODS and not control
+    if kinematic and method not in KINEMATIC_METHODS:
+        raise ModelError(f"'{method}' has no kinematic sideslip path (the methods with one: "
+                         f"{', '.join(KINEMATIC_METHODS)})")
+    kinematic = (method in KINEMATIC_METHODS and not control) if kinematic is None else bool(kinematic)
     if noise is None:
         # mbkf: the steer input carries the whole model uncertainty (001), no white noise on beta', r'
         noise = NoiseSettings(q_beta=0.0, q_yaw_rate=0.0) if method == "mbkf" else (
-            estimation_noise() if kinematic else CONTROL_NOISE)
+            estimation_noise() if kinematic and not control else CONTROL_NOISE)
     lat = ("beta", "yaw_rate", "yaw")
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,

@@ -59,16 +59,31 @@ class Transition:
     traced ECU step, the rows already read at this period's speed)."""
     held: tuple[tuple[int, int, float], ...]
     """(row, column, value) of ``E`` with the lateral model held (below the minimum speed)."""
+    a_entries: tuple[tuple[int, int], ...] = ()
+    """(row, column) of continuous ``A`` entries tabulated after ``G`` (the sideslip row, for a filter
+    with the kinematic path: it compares the model's lateral acceleration with the measured one)."""
+    b_entries: tuple[tuple[int, int], ...] = ()
+    """(row, input) of continuous ``B`` entries tabulated after those."""
 
     @property
     def names(self) -> tuple[str, ...]:
         """Row names: ``E_i_j`` and ``G_i_k`` (state and input indices)."""
-        return tuple(f"E_{i}_{j}" for i, j in self.e_entries) + tuple(f"G_{i}_{k}" for i, k in self.g_entries)
+        return tuple(f"E_{i}_{j}" for i, j in self.e_entries) + tuple(f"G_{i}_{k}" for i, k in self.g_entries) \
+            + tuple(f"A_{i}_{j}" for i, j in self.a_entries) + tuple(f"B_{i}_{k}" for i, k in self.b_entries)
 
-    def matrices(self, v, dt, dynamic, o=NUMPY):
+    def continuous(self, rows, dynamic, o=NUMPY):
+        """The tabulated continuous entries from ``rows`` (this period's reads of :attr:`table`):
+        ``{(i, j): A_ij}``, ``{(i, k): B_ik}``, gated by ``dynamic`` as the model is."""
+        k = len(self.e_entries) + len(self.g_entries)
+        a = {e: dynamic * rows[k + m] for m, e in enumerate(self.a_entries)}
+        k += len(self.a_entries)
+        return a, {e: dynamic * rows[k + m] for m, e in enumerate(self.b_entries)}
+
+    def matrices(self, v, dt, dynamic, o=NUMPY, rows=None):
         """``(E, G)`` at speed ``v`` (the filter's, already at least its minimum speed) for the period
-        ``dt``; ``dynamic`` 0/1 (number or symbol): the lateral model acts (1) or is held (0)."""
-        rows = self.table.values(v, o)
+        ``dt``; ``dynamic`` 0/1 (number or symbol): the lateral model acts (1) or is held (0).
+        ``rows``: the table already read at ``v``."""
+        rows = self.table.values(v, o) if rows is None else rows
         r = dt * (1.0 / self.dt)  # 1 at the control period
         on = r * dynamic  # r or 0: one product per entry
         off = r * (1.0 - dynamic)
@@ -107,7 +122,7 @@ def exact_discretisation(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.nd
 def build_transition(d, schedule, dt: float) -> Transition:
     """The transition table of filter design ``d`` on ``schedule``'s grid (its coefficient rows at
     each grid point) for the control period ``dt`` (cached by what it depends on)."""
-    key = (d.states, d.disturbance, float(d.noise.disturbance_tau), schedule, float(dt))
+    key = (d.states, d.disturbance, float(d.noise.disturbance_tau), schedule, float(dt), bool(d.kinematic))
     hit = _CACHE.get(key)
     if hit is None:
         if len(_CACHE) > 32:
@@ -132,7 +147,16 @@ def _build(d, schedule, dt: float) -> Transition:
     g_idx = tuple((int(i), int(k)) for i, k in zip(*np.nonzero(np.any(Gs != 0.0, axis=0))))
     rows = [tuple(float(v) for v in Es[:, i, j]) for i, j in e_idx] + \
         [tuple(float(v) for v in Gs[:, i, k]) for i, k in g_idx]
+    a_idx = b_idx = ()
+    if d.kinematic:  # the sideslip row of the continuous model, which the kinematic path compares with a_y
+        ib = d.index("beta")
+        As, Bs = zip(*(continuous_model(d, 1.0 / x, NUMPY, dynamic=True) for x in schedule.inv_speed))
+        As, Bs = np.array(As), np.array(Bs)
+        a_idx = tuple((ib, int(j)) for j in np.nonzero(np.any(As[:, ib] != 0.0, axis=0))[0])
+        b_idx = tuple((ib, int(k)) for k in np.nonzero(np.any(Bs[:, ib] != 0.0, axis=0))[0])
+        rows += [tuple(float(v) for v in As[:, i, j]) for i, j in a_idx] + \
+            [tuple(float(v) for v in Bs[:, i, k]) for i, k in b_idx]
     A0, B0 = continuous_model(d, 1.0, NUMPY, dynamic=False)
     E0, _ = exact_discretisation(A0, B0, dt)
     held = tuple((int(i), int(j), float(E0[i, j])) for i, j in zip(*np.nonzero(E0)))
-    return Transition(float(dt), d.n, e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held)
+    return Transition(float(dt), d.n, e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held, a_idx, b_idx)

@@ -164,10 +164,6 @@ class EcuDesign:
         if self.filter.method not in FIRMWARE_METHODS:
             raise ModelError(f"firmware export supports the Kalman-filter methods ({', '.join(FIRMWARE_METHODS)}), "
                              f"not '{self.filter.method}'")
-        if self.filter.kinematic:
-            raise ModelError(f"the ECU runs '{self.filter.method}' without the kinematic sideslip path (the closed "
-                             "loop has not been judged with it, and design files do not carry it): design the filter "
-                             "with design_filter(..., control=True)")
         if not isinstance(self.controller.schedule, SpeedSchedule) or self.filter.schedule != self.controller.schedule:
             raise ModelError("the ECU's filter and controller must carry the same speed schedule")
         # the filter propagates with its model discretised on the schedule's grid for the control period
@@ -221,7 +217,7 @@ class EcuDesign:
     @property
     def n_schedule_inputs(self) -> tuple[int, int]:
         """How many table rows the step reads: the filter's transition rows, the controller's schedule rows."""
-        return len(self.transition.e_entries) + len(self.transition.g_entries), len(ROWS)
+        return len(self.transition.names), len(ROWS)
 
     def schedule_inputs(self, speed) -> np.ndarray:
         """The tables' rows at ``speed`` (scalar or array): the filter's transition rows at the filter's

@@ -74,7 +74,8 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
         "estimator": {
             "method": f.method, "states": list(f.states), "disturbance": f.disturbance, "bias": f.bias,
             "gating": f.gating, "hdop_noise": f.hdop_noise, "standstill_update": f.standstill_update,
-            "residual_prediction": f.residual_prediction, "latency_s": f.latency, "antenna_x_m": f.antenna_x,
+            "residual_prediction": f.residual_prediction, "kinematic": bool(f.kinematic), "latency_s": f.latency,
+            "antenna_x_m": f.antenna_x,
             "noise": {k.name: float(getattr(f.noise, k.name)) for k in dataclasses.fields(f.noise)},
         },
         "controller": {k.name: _num(getattr(c, k.name)) for k in dataclasses.fields(c) if k.name not in _CTL_SKIP},
@@ -137,7 +138,7 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
         e = doc["estimator"]
         fd = design_filter(e["method"], params, NoiseSettings(**e["noise"]), latency=e["latency_s"],
                            antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False,
-                           control=True)
+                           control=True, kinematic=bool(e.get("kinematic", False)))
         field = "schedule"
         s = doc["schedule"]
         sched = SpeedSchedule(tuple(float(v) for v in s["axis"]["values"]),
