@@ -40,11 +40,11 @@ from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
 from evstab.toolkit.simulator import simulate
 
 CARS = (1, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "dakf (ECU, kinematic)", "kf", "mbkf", "lob",
-           "kkf", "two-stage", "dual-antenna", "dakf-paper")
+METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "dakf (ECU, no kinematic path)", "kf", "mbkf",
+           "lob", "kkf", "two-stage", "dual-antenna", "dakf-paper")
 """Every estimator (the logs have every column each needs); ``dakf (ECU)`` is the ECU's filter
-(``design_filter(..., control=True)``: the stability loop's noise, no kinematic path), ``dakf (ECU,
-kinematic)`` the same with the kinematic path (``evstab design --kinematic-path``)."""
+(``design_filter(..., control=True)``: the stability loop's noise, the kinematic path), ``dakf (ECU, no
+kinematic path)`` the same without the path (``evstab design --no-kinematic-path``)."""
 START = 2.0
 DEG = np.pi / 180
 SLIDE_HAND_WHEEL_DEG = {1: 100.0, 3: 45.0}
@@ -92,9 +92,9 @@ def main(out, quick: bool = False) -> list[dict]:
             lateral = sel & (np.abs(log["ay_true"] if "ay_true" in log else log["ay"]) > 1.0)
             for label, nominal in (("exact", p), ("off", wrong(p))):
                 for m in METHODS[:3] if quick else METHODS:
-                    ecu, kin = " (ECU" in m, m.endswith(", kinematic)")
+                    ecu, no_kin = " (ECU" in m, m.endswith("no kinematic path)")
                     est = run_estimator(design_filter(m.split(" (")[0], nominal, nominal=False, control=ecu,
-                                                      kinematic=True if kin else None), log)
+                                                      kinematic=False if no_kin else None), log)
                     err = np.degrees(est["beta"] - log["beta_true"])
                     rows.append({"car": f"commonroad-mb:{n}", "drive": name, "nominal": label, "method": m,
                                  "rms_deg": float(np.sqrt(np.mean(err[sel] ** 2))),

@@ -522,9 +522,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sp.add_argument("--noise", help="noise file (TOML, from 'evstab estimate --tune'): the filter's noise settings; "
                                     "default the method's")
-    sp.add_argument("--kinematic-path", action="store_true",
-                    help="the ECU's filter blends in the kinematic sideslip rate a_y/v - r where the tyres leave "
-                         "the linear model (the sweep, tuning and limit check run with it; design.json carries it)")
+    sp.add_argument("--no-kinematic-path", action="store_true",
+                    help="the ECU's filter without the kinematic sideslip path (by default it blends in a_y/v - r "
+                         "where the tyres leave the linear model; design.json records which)")
     sp.set_defaults(func=cmd_design)
     sp = sub.add_parser("cache", help="where the compiled code is cached ($EVSTAB_CACHE, default ~/.cache/evstab), "
                                       "how much, and --clear to empty it")
@@ -566,7 +566,7 @@ def cmd_design(args) -> int:
         noise = load_noise(args.noise)
     doc = run_design(args.vehicle, args.out, quick=args.quick, executor=args.executor, scheduler=args.scheduler,
                      workers=args.workers, command=command, progress=not args.no_progress, plant=args.plant,
-                     noise=noise, kinematic=args.kinematic_path)
+                     noise=noise, kinematic=not args.no_kinematic_path)
     s, d = doc["sweep"], doc["designs"]["tuned"]
     print(f"{doc['vehicle']['name']}: tuned K_beta {d['k_beta']:.4g}, K_gamma {d['k_gamma']:.4g} rad/s; "
           f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "

@@ -414,7 +414,7 @@ def _limit_summary(limit_rows: list[dict]) -> dict:
 
 def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local", scheduler: str | None = None,
                workers: int | None = None, command: str | None = None, progress: bool = True, log=print,
-               plant: str = "two-track", noise: NoiseSettings | None = None, kinematic: bool = False) -> dict:
+               plant: str = "two-track", noise: NoiseSettings | None = None, kinematic: bool = True) -> dict:
     """``evstab design``: the whole job, written into ``out`` (see the module notes).
 
     Parameters
@@ -445,7 +445,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         The filter's noise settings (``evstab design --noise FILE``, a file ``evstab estimate
         --tune`` wrote); the paper design starts from its process-noise intensities.
     kinematic : bool
-        The ECU's filter with the kinematic sideslip path (``evstab design --kinematic-path``).
+        The ECU's filter with the kinematic sideslip path (default; ``evstab design --no-kinematic-path``:
+        without).
 
     Returns
     -------

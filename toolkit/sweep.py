@@ -37,7 +37,7 @@ from evstab.plants.sensors import SensorConfig
 
 from .closed_loop import EXTRA, loop_spec, noise_matrix, program, samples
 from .estimation import design_filter
-from .estimation.spec import FilterDesign, NoiseSettings
+from .estimation.spec import KINEMATIC_METHODS, FilterDesign, NoiseSettings
 from .stability import estimator_loop
 from evstab.plants.errors import SettingsError
 
@@ -144,8 +144,9 @@ class SweepConfig:
     noise: NoiseSettings | None = None
     """The filter's noise settings (a noise file's, :func:`toolkit.estimation.noise_fit.load_noise`);
     None: the method's defaults. The paper point starts from their process-noise intensities."""
-    kinematic: bool = False
-    """The ECU's filter with the kinematic sideslip path (:func:`toolkit.estimation.spec.design_filter`)."""
+    kinematic: bool = True
+    """The ECU's filter with the kinematic sideslip path (:func:`toolkit.estimation.spec.design_filter`;
+    ``evstab design --no-kinematic-path``: without)."""
 
     @property
     def paper(self) -> "DesignPoint":
@@ -161,7 +162,7 @@ class SweepConfig:
 
     def filter_design(self, point: DesignPoint) -> FilterDesign:
         base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency,
-                             control=True, kinematic=self.kinematic or None)
+                             control=True, kinematic=self.kinematic if self.estimator in KINEMATIC_METHODS else None)
         return dataclasses.replace(base, noise=point.noise(base.noise))
 
     def spec(self):

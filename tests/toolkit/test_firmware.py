@@ -435,8 +435,8 @@ def test_ecu_design_rejects_what_firmware_cannot_run():
     with pytest.raises(ValueError, match="Kalman-filter methods"):
         EcuDesign.from_designs(design_filter("lob", p), TwoDofDesign(p))
     # the kinematic sideslip path runs on the ECU too: its state is part of the ECU's
-    kin = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=True), TwoDofDesign(p))
-    plain = EcuDesign.from_designs(design_filter("dakf", p, control=True), TwoDofDesign(p))
+    kin = EcuDesign.from_designs(design_filter("dakf", p, control=True), TwoDofDesign(p))  # the default
+    plain = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=False), TwoDofDesign(p))
     assert kin.n_state == plain.n_state + 4 and kin.filter.transition.a_entries
     with pytest.raises(ValueError, match="no kinematic sideslip path"):
         design_filter("kf-bias", p, control=True, kinematic=True)

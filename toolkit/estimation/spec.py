@@ -302,10 +302,10 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     """Design a filter for ``params`` (its nominal version unless ``nominal=False``).
 
     ``control``: the ECU's filter (the stability loop, the design job, firmware export):
-    :data:`CONTROL_NOISE` unless ``noise`` is given, and no kinematic path unless ``kinematic``.
-    Otherwise the methods of :data:`KINEMATIC_METHODS` estimate with :func:`estimation_noise`
-    (unless ``noise`` is given) and the kinematic sideslip path. ``kinematic`` (those methods
-    only): the path on or off whatever ``control`` says."""
+    :data:`CONTROL_NOISE` unless ``noise`` is given. Otherwise the methods of
+    :data:`KINEMATIC_METHODS` estimate with :func:`estimation_noise` (unless ``noise`` is given).
+    Those methods have the kinematic sideslip path, on logs and in the ECU; ``kinematic=False``
+    leaves it out (``kinematic=True`` for another method is an error)."""
     if method not in METHODS:
         raise ModelError(f"unknown estimation method '{method}'; known: {', '.join(METHODS)}")
     if not (np.isfinite(latency) and 0 <= latency <= 0.5):
@@ -314,11 +314,11 @@ def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | Non
     if kinematic and method not in KINEMATIC_METHODS:
         raise ModelError(f"'{method}' has no kinematic sideslip path (the methods with one: "
                          f"{', '.join(KINEMATIC_METHODS)})")
-    kinematic = (method in KINEMATIC_METHODS and not control) if kinematic is None else bool(kinematic)
+    kinematic = (method in KINEMATIC_METHODS) if kinematic is None else bool(kinematic)
     if noise is None:
         # mbkf: the steer input carries the whole model uncertainty (001), no white noise on beta', r'
         noise = NoiseSettings(q_beta=0.0, q_yaw_rate=0.0) if method == "mbkf" else (
-            estimation_noise() if kinematic and not control else CONTROL_NOISE)
+            estimation_noise() if method in KINEMATIC_METHODS and not control else CONTROL_NOISE)
     lat = ("beta", "yaw_rate", "yaw")
     if method == "dakf-paper":
         return FilterDesign(method, lat + ("d1", "d2"), p, noise, "random-walk", False, False, False, False,
