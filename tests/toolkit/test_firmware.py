@@ -442,6 +442,32 @@ def test_ecu_design_rejects_what_firmware_cannot_run():
         design_filter("kf-bias", p, control=True, kinematic=True)
 
 
+def _design_dirs(tmp_path, p, filters: dict) -> dict:
+    """A design folder per filter design (name -> folder), with the default controller and GPS."""
+    ctl = TwoDofDesign(p.as_nominal())
+    gps = {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}
+    dirs = {}
+    for name, filt in filters.items():
+        dirs[name] = tmp_path / name
+        dirs[name].mkdir()
+        (dirs[name] / "design.json").write_text(json.dumps(basic_design_document(p, filt, ctl, gps, "test"), indent=2))
+    return dirs
+
+
+def _c_equals_replay(design_dir, log_path, tmp_path) -> dict:
+    """Export ``design_dir``'s C (float64), run it over ``log_path`` and compare it with the replay
+    output by output; returns the replay."""
+    out = tmp_path / "fw"
+    assert main(["export", str(design_dir), "--format", "c", "--out", str(out)]) == 0
+    _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),
+          str(out / "evstab_replay.c"), "-lm"])
+    rep, inputs = _replay_cli(design_dir, log_path, tmp_path)
+    Y = _harness(out / "replay", inputs)
+    for i, name in enumerate(OUTPUTS):
+        np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
+    return rep
+
+
 @needs_cc
 def test_an_ecu_with_the_adaptive_noise_exports_c_equal_to_its_replay(closed_loop, tmp_path):
     """The estimation noise in the ECU (a noise file fitted to a log and given to `evstab design --noise`
@@ -449,23 +475,11 @@ def test_an_ecu_with_the_adaptive_noise_exports_c_equal_to_its_replay(closed_loo
     noise's, and both reach the C. Compared with the replay over the closed-loop log (float64), and the
     scale changes the estimate (else the test would not see it travel)."""
     p = load_vehicle("compact-ev")
-    ctl = TwoDofDesign(p.as_nominal())
-    gps = {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}
-    dirs = {}
-    for name, noise in (("adaptive", estimation_noise()), ("fixed", replace(estimation_noise(), adapt_rate=0.0))):
-        doc = basic_design_document(p, design_filter("dakf", p, noise, control=True), ctl, gps, "test")
-        dirs[name] = tmp_path / name
-        dirs[name].mkdir()
-        (dirs[name] / "design.json").write_text(json.dumps(doc, indent=2))
-    out = tmp_path / "fw"
-    assert main(["export", str(dirs["adaptive"]), "--format", "c", "--out", str(out)]) == 0
-    _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),
-          str(out / "evstab_replay.c"), "-lm"])
+    dirs = _design_dirs(tmp_path, p, {
+        "adaptive": design_filter("dakf", p, estimation_noise(), control=True),
+        "fixed": design_filter("dakf", p, replace(estimation_noise(), adapt_rate=0.0), control=True)})
     _, log_path = closed_loop
-    rep, inputs = _replay_cli(dirs["adaptive"], log_path, tmp_path)
-    Y = _harness(out / "replay", inputs)
-    for i, name in enumerate(OUTPUTS):
-        np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
+    rep = _c_equals_replay(dirs["adaptive"], log_path, tmp_path)
     other = tmp_path / "fixed_replay"
     other.mkdir()
     fixed, _ = _replay_cli(dirs["fixed"], log_path, other)
@@ -480,30 +494,17 @@ def test_an_ecu_with_the_kinematic_path_exports_c_equal_to_its_replay(tmp_path):
     path holds the estimate that the linear model alone loses."""
     from evstab.studies.estimation_mb import drives
     p = load_vehicle("commonroad-3")
-    ctl = TwoDofDesign(p.as_nominal())
-    gps = {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}
-    dirs = {}
-    for name, kin in (("kinematic", True), ("plain", False)):
-        doc = basic_design_document(p, design_filter("dakf", p, control=True, kinematic=kin), ctl, gps, "test")
-        assert doc["estimator"]["kinematic"] is kin
-        dirs[name] = tmp_path / name
-        dirs[name].mkdir()
-        (dirs[name] / "design.json").write_text(json.dumps(doc, indent=2))
-    assert load_design(dirs["kinematic"]).filter.kinematic
+    dirs = _design_dirs(tmp_path, p, {"kinematic": design_filter("dakf", p, control=True),
+                                      "plain": design_filter("dakf", p, control=True, kinematic=False)})
+    assert json.loads((dirs["kinematic"] / "design.json").read_text())["estimator"]["kinematic"] is True
+    assert load_design(dirs["kinematic"]).filter.kinematic and not load_design(dirs["plain"]).filter.kinematic
     name, man, mu, sens, _ = drives(p, 3)[-1]
     assert name.startswith("slide")
     res = simulate(p, "commonroad-mb:3", man, disturbances=Disturbances(friction=Friction(mu=mu)), sensors=sens,
                    seed=3)
     log_path = tmp_path / "slide.csv"
     res.write_csv(log_path)
-    out = tmp_path / "fw"
-    assert main(["export", str(dirs["kinematic"]), "--format", "c", "--out", str(out)]) == 0
-    _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),
-          str(out / "evstab_replay.c"), "-lm"])
-    rep, inputs = _replay_cli(dirs["kinematic"], log_path, tmp_path)
-    Y = _harness(out / "replay", inputs)
-    for i, name in enumerate(OUTPUTS):
-        np.testing.assert_allclose(Y[:, i], rep[name], rtol=0, atol=TOL["float64"])
+    rep = _c_equals_replay(dirs["kinematic"], log_path, tmp_path)
     other = tmp_path / "plain_replay"
     other.mkdir()
     plain, _ = _replay_cli(dirs["plain"], log_path, other)
