@@ -37,7 +37,7 @@ from evstab.plants.sensors import SensorConfig
 
 from .closed_loop import EXTRA, loop_spec, noise_matrix, program, samples
 from .estimation import design_filter
-from .estimation.spec import KINEMATIC_METHODS, FilterDesign, NoiseSettings
+from .estimation.spec import FilterDesign, NoiseSettings
 from .stability import estimator_loop
 from evstab.plants.errors import SettingsError
 
@@ -162,7 +162,7 @@ class SweepConfig:
 
     def filter_design(self, point: DesignPoint) -> FilterDesign:
         base = design_filter(self.estimator, self.nominal, self.noise, dt=self.dt, latency=self.sensors.gps_latency,
-                             control=True, kinematic=self.kinematic if self.estimator in KINEMATIC_METHODS else None)
+                             control=True, kinematic=None if self.kinematic else False)
         return dataclasses.replace(base, noise=point.noise(base.noise))
 
     def spec(self):

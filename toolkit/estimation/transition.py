@@ -20,7 +20,7 @@ A period ``dt`` other than ``T`` scales both by ``dt / T`` (first order in the j
 the error in ``F`` is at most ``|dt / T - 1| |A T|^2 / 2`` per entry).
 
 Accuracy (measured by ``tests/toolkit/test_transition.py``): at the grid points the table
-equals scipy's ``expm`` to 1e-15 relative; between them the interpolated ``E`` differs from
+equals scipy's ``expm`` to 1e-14 of the largest entry; between them the interpolated ``E`` differs from
 the Taylor step at the interpolated coefficients by the interpolation error of the
 coefficients themselves (the schedule's own ``max_error``), and a closed-loop log with the
 tabulated step differs from the Taylor step's by the bounds that test asserts.
@@ -136,13 +136,9 @@ _CACHE: dict = {}
 
 def _build(d, schedule, dt: float) -> Transition:
     from .spec import continuous_model
-    Es, Gs = [], []
-    for x in schedule.inv_speed:
-        A, B = continuous_model(d, 1.0 / x, NUMPY, dynamic=True)
-        E, G = exact_discretisation(A, B, dt)
-        Es.append(E)
-        Gs.append(G)
-    Es, Gs = np.array(Es), np.array(Gs)
+    As, Bs = (np.array(m) for m in zip(*(continuous_model(d, 1.0 / x, NUMPY, dynamic=True)
+                                         for x in schedule.inv_speed)))
+    Es, Gs = (np.array(m) for m in zip(*(exact_discretisation(A, B, dt) for A, B in zip(As, Bs))))
     e_idx = tuple((int(i), int(j)) for i, j in zip(*np.nonzero(np.any(Es != 0.0, axis=0))))
     g_idx = tuple((int(i), int(k)) for i, k in zip(*np.nonzero(np.any(Gs != 0.0, axis=0))))
     rows = [tuple(float(v) for v in Es[:, i, j]) for i, j in e_idx] + \
@@ -150,8 +146,6 @@ def _build(d, schedule, dt: float) -> Transition:
     a_idx = b_idx = ()
     if d.kinematic:  # the sideslip row of the continuous model, which the kinematic path compares with a_y
         ib = d.index("beta")
-        As, Bs = zip(*(continuous_model(d, 1.0 / x, NUMPY, dynamic=True) for x in schedule.inv_speed))
-        As, Bs = np.array(As), np.array(Bs)
         a_idx = tuple((ib, int(j)) for j in np.nonzero(np.any(As[:, ib] != 0.0, axis=0))[0])
         b_idx = tuple((ib, int(k)) for k in np.nonzero(np.any(Bs[:, ib] != 0.0, axis=0))[0])
         rows += [tuple(float(v) for v in As[:, i, j]) for i, j in a_idx] + \
