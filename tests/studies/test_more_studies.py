@@ -107,6 +107,13 @@ def test_estimation_on_the_multibody_car_meets_the_targets(tmp_path):
     assert float(got["double lane change 60 km/h mu 0.5"]["rms_deg"]) <= 0.25
     assert float(got["slide 80 km/h mu 0.5"]["rms_deg"]) <= 1.0
     assert float(got["ramp 0-4 deg 60 km/h"]["rms_deg"]) <= 0.4
+    # amrkf (its residual prediction weighted by the fixes' innovation correlation) is not worse than
+    # dakf on any drive, either nominal: 0.005 deg RMS of slack (the full study, 48 logs, measures
+    # equal but for 0.003 on one Vanagon ramp)
+    by = {(r["drive"], r["nominal"], r["method"]): float(r["rms_deg"]) for r in rows}
+    for (drive, nominal, method), v in by.items():
+        if method == "amrkf":
+            assert v <= by[(drive, nominal, "dakf")] + 0.005, (drive, nominal)
 
 
 def test_nominal_fits_reproduce_the_bundled_files(tmp_path):

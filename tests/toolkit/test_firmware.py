@@ -517,6 +517,28 @@ def test_an_ecu_with_the_kinematic_path_exports_c_equal_to_its_replay(tmp_path):
     assert err["kin"] < 1.0 < 5.0 < err["plain"], err
 
 
+@needs_cc
+def test_an_amrkf_ecu_exports_c_equal_to_its_replay(tmp_path):
+    """amrkf in the ECU: its residual prediction and the innovations' correlation state reach the C,
+    equal to the replay (float64) over a lane change, the ECU designed from the +40 % stiffness file.
+    The correlation threshold is lowered to 0 here so that the prediction acts (at the default, 0.6,
+    the ECU's innovations on this log are too white for it and amrkf is dakf)."""
+    from evstab.studies.estimation_mb import wrong
+    p = load_vehicle("compact-ev")
+    amr = design_filter("amrkf", wrong(p), control=True)
+    amr = replace(amr, noise=replace(amr.noise, residual_corr_min=0.0))
+    dirs = _design_dirs(tmp_path, wrong(p), {"amrkf": amr, "dakf": design_filter("dakf", wrong(p), control=True)})
+    assert load_design(dirs["amrkf"]).filter.noise.residual_corr_min == 0.0
+    res = simulate(p, "two-track", make_maneuver("sine-lane-change", p, 60 / 3.6, np.radians(4.0)), seed=2)
+    log_path = tmp_path / "lane.csv"
+    res.write_csv(log_path)
+    rep = _c_equals_replay(dirs["amrkf"], log_path, tmp_path)
+    other = tmp_path / "dakf_replay"
+    other.mkdir()
+    plain, _ = _replay_cli(dirs["dakf"], log_path, other)
+    assert np.abs(rep["beta"] - plain["beta"]).max() > 1e-5  # rad: the prediction acted (measured 2.1e-4)
+
+
 def test_replay_and_estimate_refuse_bad_input_and_write_nothing(tmp_path, capsys, design_dir, closed_loop):
     _, log = closed_loop
     out = tmp_path / "out.csv"

@@ -19,8 +19,9 @@ Baselines: :func:`roll_kf` (Tseng et al.: states ``phi, phi'``, roll-rate measur
 
 These run in numpy over a whole log (a 5-state filter at 1 kHz: about 3 s per minute
 of log); ``evstab estimate --method double-layer`` runs layer 2 on ``dakf``'s estimate (004's layer 1
-is the advanced multi-rate filter, ``amrkf``; with evstab's noise its inter-sample residual
-prediction over-corrects, so layer 1 is the filter without it).
+is the advanced multi-rate filter, ``amrkf``; its inter-sample residual prediction as printed
+over-corrects with evstab's noise, and evstab's correlation-weighted one leaves ``amrkf`` equal to
+``dakf`` where the fixes' innovations are white, so layer 1 is the filter without it).
 """
 
 from __future__ import annotations

@@ -116,7 +116,7 @@ def watches_bias(d: FilterDesign) -> bool:
 
 def layout(d: FilterDesign) -> Layout:
     """The parts of the flat filter state."""
-    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d))
+    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d), d.residual_prediction)
 
 
 def adapts(d: FilterDesign) -> bool:
@@ -125,7 +125,8 @@ def adapts(d: FilterDesign) -> bool:
 
 
 @lru_cache(maxsize=64)
-def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adaptive: bool) -> Layout:
+def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adaptive: bool,
+            predicts: bool = False) -> Layout:
     n = len(states)
     return Layout("filter state", [
         Signal("x", "-", f"the state ({', '.join(states)})", n),
@@ -138,6 +139,9 @@ def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adap
         Signal("buf", "rad", "the predicted course of the last samples (latency)", nb),
         Signal("kin", "-", "the kinematic path's state (KINEMATIC)", KINEMATIC.size if kinematic else 0),
         Signal("qscale", "-", "the process noise's innovation-adaptive scale", 1 if adaptive else 0),
+        Signal("rcor", "-", "the accepted fixes' normalised innovations: the last, and the running means of "
+                            "its products with the one before and of its square (residual prediction)",
+               3 if predicts else 0),
     ])
 
 
@@ -151,6 +155,8 @@ def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) ->
     z[lay.slot("P")] = d.initial_covariance().ravel(order="F")
     z[lay.slot("buf")] = yaw0
     z[lay.slot("qscale")] = 1.0
+    if d.residual_prediction:
+        z[lay.slot("rcor")] = (0.0, 0.0, 1.0)  # white innovations of unit variance
     return z
 
 
@@ -340,6 +346,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         if watches_bias(d):
             cusum, alarm = zs.cusum, 0.0 * v
 
+    extra = {}
     # 5. inter-sample residual prediction (seed 004 eq. 28-29) between fixes
     if d.residual_prediction:
         # q = h A_d (I - L h) h^+ with the gain of the last fix; h^+ = h^T / (h h^T)
@@ -347,12 +354,22 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         qd = _dot(hc, r_ + E @ r_, o)
         eps_next = o.if_else(acc, innov, qd * eps)
         gain_next = o.if_else(acc, K, gain)
-        x = o.if_else(acc, x, x + gain * (qd * eps))
+        if nz.residual_corr_fixes > 0:
+            rcor = _residual_correlation(d, zs.rcor, resid, accept, o)
+            # the corrections between two fixes add up to the weight times the last fix's own (a geometric
+            # series of qd ~ 1 - hK: the paper's, unweighted, add up to (1 - hK) / (hK) times it)
+            hk = _dot(hc, gain, o)
+            weight = _prediction_weight(d, rcor, o) * hk / o.fmax(1.0 - hk, 1e-3)
+        else:  # seed 004 as printed
+            rcor, weight = zs.rcor, 1.0
+        x = o.if_else(acc, x, x + gain * (weight * qd * eps))
         eps, gain = eps_next, gain_next
+        extra["rcor"] = rcor
 
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
-    extra = {"cusum": cusum} if watches_bias(d) else {}
+    if watches_bias(d):
+        extra["cusum"] = cusum
     if nb > 0:
         extra["buf"] = buf_next
     if d.kinematic:
@@ -490,6 +507,25 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     kin = _col(e_b, o) * (w * ay / v_m)
     return w, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
+
+
+def _residual_correlation(d: FilterDesign, rcor, nu, accept, o):
+    """The next ``rcor`` (see :func:`layout`): at an accepted fix, the running means (over about
+    ``residual_corr_fixes`` fixes) of ``nu nu_prev`` and ``nu^2`` move towards this fix's values, and
+    ``nu`` becomes the last innovation; otherwise nothing changes."""
+    a = accept * (1.0 / d.noise.residual_corr_fixes)
+    last, cross, square = rcor[0], rcor[1], rcor[2]
+    return o.stack([last + accept * (nu - last), cross + a * (nu * last - cross), square + a * (nu * nu - square)])
+
+
+def _prediction_weight(d: FilterDesign, rcor, o):
+    """The weight ``w`` of the inter-sample correction: 0 while the fixes' innovations are white (the filter
+    has already used what they tell), rising linearly to 1 as their lag-one correlation
+    ``rho = mean(nu nu_prev) / mean(nu^2)`` goes from ``residual_corr_min`` to 1 (the residual the
+    next fix will show is predictable: a drift the model does not hold)."""
+    nz = d.noise
+    rho = rcor[1] / o.fmax(rcor[2], 1e-6)
+    return o.fmin(o.fmax((rho - nz.residual_corr_min) / (1.0 - nz.residual_corr_min), 0.0), 1.0)
 
 
 def _adapt(d: FilterDesign, qscale, nis, accept, o):

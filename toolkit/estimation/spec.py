@@ -23,9 +23,14 @@ Methods
     leaves the linear model's, ``beta' = a_y / v - r`` takes over). In the ECU
     (``control=True``): :data:`CONTROL_NOISE`, neither of the two.
 ``amrkf``
-    ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29). Between fixes it applies
-    the last fix's gain again to the predicted residual, ``(1 - h K) / (h K)`` times the fix's own
-    correction in all: the smaller the gain (consistent noise), the larger the over-correction.
+    ``dakf`` plus seed 004's inter-sample residual prediction (eq. 28-29), weighted by how predictable
+    the fixes' innovations are. As printed, it applies the last fix's gain again to the predicted
+    residual between fixes, ``(1 - h K) / (h K)`` times the fix's own correction in all: the smaller
+    the gain (consistent noise), the larger the over-correction. evstab scales it so that the
+    corrections between two fixes add up to ``w`` times the fix's, with ``w`` 0 while the innovations'
+    running lag-one correlation is below ``NoiseSettings.residual_corr_min`` (white innovations: the
+    filter has used what they tell) and 1 at correlation 1 (a drift the model does not hold).
+    ``residual_corr_fixes = 0`` gives the printed method.
 ``kf``
     Three states (beta, r, psi), no disturbances, no bias (seed 001 / 003's "KF").
 ``kf-bias``
@@ -46,7 +51,7 @@ Methods
     accelerometer, yaw and roll gyros, GPS heading, roll and velocity direction.
 ``double-layer``
     Seed 004's double-layer estimator: layer 1 is ``dakf`` (004 uses ``amrkf``, whose inter-sample
-    residual prediction over-corrects with evstab's noise), layer 2
+    residual prediction as printed over-corrects with evstab's noise), layer 2
     (:mod:`toolkit.estimation.double_layer`) adds vx, vy and the roll angle from the accelerometers,
     the roll rate and pseudo-velocities from layer 1's sideslip.
 ``kkf``
@@ -189,6 +194,15 @@ class NoiseSettings:
     ``e^(adapt_rate (cap - 1))``)."""
     adapt_settle: float = 2.0
     """[s] The scale starts to adapt this long after the first fix."""
+    residual_corr_fixes: float = 20.0
+    """[fixes] The memory of the fix innovations' lag-one correlation ``rho`` that weighs ``amrkf``'s
+    inter-sample residual prediction (:func:`toolkit.estimation.kalman._prediction_weight`): the
+    corrections between two fixes add up to ``w(rho)`` times the last fix's own. 0 = seed 004 as
+    printed (eq. 28-29 unweighted: ``(1 - h K) / (h K)`` times the fix's correction)."""
+    residual_corr_min: float = 0.6
+    """Lag-one correlation of the fix innovations up to which ``amrkf`` predicts no residual (white
+    innovations: the estimate's spread over 20 fixes is 1 / sqrt(20) = 0.22; ``w`` rises linearly to 1
+    at ``rho = 1``)."""
     gps_min_speed: float = 1.0
     """Course fixes below this ground speed [m/s] are not used."""
     gate: float = CHI2_1DOF_999
@@ -219,6 +233,11 @@ class NoiseSettings:
         if self.adapt_max < self.adapt_min:
             raise ModelError(f"noise setting 'adapt_max' ({self.adapt_max!r}) must be >= 'adapt_min' "
                              f"({self.adapt_min!r})")
+        if 0 < self.residual_corr_fixes < 1:
+            raise ModelError(f"noise setting 'residual_corr_fixes' must be 0 (unweighted) or >= 1, got "
+                             f"{self.residual_corr_fixes!r}")
+        if not self.residual_corr_min < 1:
+            raise ModelError(f"noise setting 'residual_corr_min' must be < 1, got {self.residual_corr_min!r}")
         if self.disturbance_tau <= 0:
             raise ModelError(f"noise setting 'disturbance_tau' must be > 0 s, got {self.disturbance_tau!r}")
 
