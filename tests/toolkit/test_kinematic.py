@@ -94,8 +94,8 @@ def test_a_delayed_fix_does_not_engage_the_kinematic_path():
     # the design job's sine lane change at 80 km/h on mu 1 (4 m/s^2) on the multi-body Escort, a GPS
     # latency of 0.15 s the filter does not compensate: a delayed fix moves the estimate, and with it
     # the model's lateral acceleration, for a moment; the lagged departure does not reach the
-    # threshold, so dakf is dakf without the path (measured 0.084 deg RMS both; without the lag 0.085: the filter's
-    # estimate hardly moves with a delayed fix now, the lag is the margin)
+    # threshold, so dakf is dakf without the path (measured 0.082 deg RMS both; with a lag of 1 ms instead
+    # of the 0.1 s the path misfires, 0.34)
     from evstab.studies.control_mb_fmvss126 import wrong_nominal
     from evstab.toolkit.sweep import SweepConfig, standard_maneuvers
     p = wrong_nominal(1)
@@ -147,8 +147,8 @@ def test_the_vanagon_sine_with_dwell_with_a_wrong_model_meets_the_reference_targ
 def test_the_path_lets_go_after_the_slide():
     # the Vanagon's sine with dwell with the exact model: in kinematic mode a sideslip error is not
     # observable, and the error the manoeuvre leaves keeps the model's lateral acceleration off the
-    # measured one; the departure alone held the path on after the steer (measured 0.88 deg RMS from
-    # 5.5 s on). The gate on the peak-held lateral acceleration lets go (measured 0.12).
+    # measured one; the departure alone holds the path on after the steer (measured 0.51 deg RMS from
+    # 5.5 s on). The gate on the peak-held lateral acceleration lets go (measured 0.08).
     from evstab.studies.estimation_mb import drives
     p = load_vehicle("commonroad-3")
     name, man, mu, sens, _ = drives(p)[1]
@@ -158,4 +158,4 @@ def test_the_path_lets_go_after_the_slide():
     held = dataclasses.replace(d, noise=dataclasses.replace(d.noise, kinematic_ay_quiet=1e-9))
     rms = {k: np.degrees(np.sqrt(np.mean(((run_estimator(x, log)["beta"] - log["beta_true"])[after]) ** 2)))
            for k, x in (("gate", d), ("no gate", held))}
-    assert rms["gate"] < 0.2 and rms["no gate"] > 0.5
+    assert rms["gate"] < 0.2 and rms["no gate"] > 3 * rms["gate"]

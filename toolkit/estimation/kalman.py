@@ -378,6 +378,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         extra["qscale"] = qscale
     # init: 0 until the first usable fix, then 1 + the seconds since (capped)
     init = o.if_else(init > 0.5, o.fmin(init + dt, INIT_MAX), init)
+    if gyro_ok is not None:  # a gyro found stuck restarts the settling (kinematic path, noise adaptation)
+        init = o.if_else(init > 0.5, init * gyro_ok + (1.0 - gyro_ok), init)
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
     nan = float("nan")
     est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
@@ -494,6 +496,8 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     w = w * o.fmin(o.fmax(level / nz.kinematic_ay_quiet - 1.0, 0.0), 1.0)
     if g.ay_ok is not None:
         w = w * g.ay_ok
+    if g.gyro_ok is not None:  # the kinematics integrate the gyro's yaw rate: not while it is found stuck
+        w = w * g.gyro_ok
     # straight driving on the model (path off, yaw rate near zero): what the accelerometer reads is
     # the road's bank and its own bias; learnt through a lag
     straight = (o.fabs(g.yaw_rate - x[d.index("gyro_bias")]) < nz.kinematic_straight_rate) * (w <= 0.0) * dyn

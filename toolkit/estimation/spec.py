@@ -174,7 +174,8 @@ class NoiseSettings:
     kinematic_straight_rate: float = 0.02
     """[rad/s] Straight driving, for that offset: the yaw rate (gyro less its bias) below this."""
     kinematic_settle: float = 2.0
-    """[s] The kinematic path waits this long after the first fix (the estimate settling)."""
+    """[s] The kinematic path waits this long after the first fix (the estimate settling), and again
+    after a stretch with the gyro found stuck (``gyro_ok`` 0)."""
     q_beta_kinematic: float = 0.02
     """[rad^2/s] white noise on the kinematic sideslip rate (the accelerometer's errors: bank, roll
     left after the static compensation, noise, divided by the speed)."""
@@ -193,7 +194,8 @@ class NoiseSettings:
     """NIS above this counts as this much in the adaptation (one outlier moves the scale by at most
     ``e^(adapt_rate (cap - 1))``)."""
     adapt_settle: float = 2.0
-    """[s] The scale starts to adapt this long after the first fix."""
+    """[s] The scale starts to adapt this long after the first fix (and again after the gyro was found
+    stuck)."""
     residual_corr_fixes: float = 20.0
     """[fixes] The memory of the fix innovations' lag-one correlation ``rho`` that weighs ``amrkf``'s
     inter-sample residual prediction (:func:`toolkit.estimation.kalman._prediction_weight`): the
@@ -312,7 +314,7 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     return NoiseSettings(gyro_std=s.gyro_noise, gps_velocity_std=s.gps_velocity_noise, q_beta=1.4e-7,
                          q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=q_d1, q_d2=q_d2, q_bias=5e-8,
                          d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
-                         adapt_rate=0.3)
+                         adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1)
 
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
