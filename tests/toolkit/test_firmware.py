@@ -454,6 +454,17 @@ def _design_dirs(tmp_path, p, filters: dict) -> dict:
     return dirs
 
 
+def _c_and_other_replay(dirs: dict, name: str, other: str, res, tmp_path) -> tuple[dict, dict]:
+    """Write the drive ``res`` as a log, check ``dirs[name]``'s exported C against its replay
+    (:func:`_c_equals_replay`) and replay ``dirs[other]`` over the same log; returns both replays."""
+    log_path = tmp_path / "drive.csv"
+    res.write_csv(log_path)
+    rep = _c_equals_replay(dirs[name], log_path, tmp_path)
+    out = tmp_path / f"{other}_replay"
+    out.mkdir()
+    return rep, _replay_cli(dirs[other], log_path, out)[0]
+
+
 def _c_equals_replay(design_dir, log_path, tmp_path) -> dict:
     """Export ``design_dir``'s C (float64), run it over ``log_path`` and compare it with the replay
     output by output; returns the replay."""
@@ -502,12 +513,7 @@ def test_an_ecu_with_the_kinematic_path_exports_c_equal_to_its_replay(tmp_path):
     assert name.startswith("slide")
     res = simulate(p, "commonroad-mb:3", man, disturbances=Disturbances(friction=Friction(mu=mu)), sensors=sens,
                    seed=3)
-    log_path = tmp_path / "slide.csv"
-    res.write_csv(log_path)
-    rep = _c_equals_replay(dirs["kinematic"], log_path, tmp_path)
-    other = tmp_path / "plain_replay"
-    other.mkdir()
-    plain, _ = _replay_cli(dirs["plain"], log_path, other)
+    rep, plain = _c_and_other_replay(dirs, "kinematic", "plain", res, tmp_path)
     truth = np.asarray(res.truth["beta"])
     assert np.abs(truth).max() > np.radians(15.0)  # the car slid
     sel = np.asarray(res.t) >= 1.0
@@ -530,12 +536,7 @@ def test_an_amrkf_ecu_exports_c_equal_to_its_replay(tmp_path):
     dirs = _design_dirs(tmp_path, wrong(p), {"amrkf": amr, "dakf": design_filter("dakf", wrong(p), control=True)})
     assert load_design(dirs["amrkf"]).filter.noise.residual_corr_min == 0.0
     res = simulate(p, "two-track", make_maneuver("sine-lane-change", p, 60 / 3.6, np.radians(4.0)), seed=2)
-    log_path = tmp_path / "lane.csv"
-    res.write_csv(log_path)
-    rep = _c_equals_replay(dirs["amrkf"], log_path, tmp_path)
-    other = tmp_path / "dakf_replay"
-    other.mkdir()
-    plain, _ = _replay_cli(dirs["dakf"], log_path, other)
+    rep, plain = _c_and_other_replay(dirs, "amrkf", "dakf", res, tmp_path)
     assert np.abs(rep["beta"] - plain["beta"]).max() > 1e-5  # rad: the prediction acted (measured 2.1e-4)
 
 
