@@ -10,7 +10,7 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, default_wind
 from evstab.plants.maneuvers import Maneuver, iso3888_1, step_steer
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import closed_loop, stability
+from evstab.toolkit import closed_loop, loop_program, stability
 from evstab.toolkit.closed_loop import LoopError
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.simulator import simulate
@@ -26,7 +26,7 @@ def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(mon
         return original(spec, model, sp, z, u, theta, o)
 
     monkeypatch.setattr(closed_loop, "loop_step", spy)
-    monkeypatch.setattr(closed_loop, "_CACHE", {})
+    monkeypatch.setattr(loop_program, "_CACHE", {})
     monkeypatch.setattr(stability, "_JAC", {})
     p = load_vehicle("micro-ev")
     man = step_steer(25 / 3.6, np.radians(3.0), start=0.1, duration=0.05)
