@@ -8,7 +8,7 @@ import pytest
 
 from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, default_wind
-from evstab.plants.maneuvers import Maneuver, iso3888_1, step_steer
+from evstab.plants.maneuvers import iso3888_1, step_steer
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit import closed_loop, loop_program, stability
 from evstab.toolkit.closed_loop import LoopError
