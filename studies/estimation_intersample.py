@@ -11,9 +11,9 @@ Run: ``python -m evstab.studies.estimation_intersample OUT_DIR [--quick]``
 
 from __future__ import annotations
 
-import numpy as np
-
 import dataclasses
+
+import numpy as np
 
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import sine_lane_change

@@ -116,7 +116,13 @@ def watches_bias(d: FilterDesign) -> bool:
 
 def layout(d: FilterDesign) -> Layout:
     """The parts of the flat filter state."""
-    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d), d.residual_prediction)
+    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d), weighs_prediction(d))
+
+
+def weighs_prediction(d: FilterDesign) -> bool:
+    """Whether the design weighs its inter-sample residual prediction by the fixes' innovation
+    correlation (``amrkf``; ``NoiseSettings.residual_corr_fixes`` 0 is the printed, unweighted method)."""
+    return bool(d.residual_prediction and d.noise.residual_corr_fixes > 0)
 
 
 def adapts(d: FilterDesign) -> bool:
@@ -126,7 +132,7 @@ def adapts(d: FilterDesign) -> bool:
 
 @lru_cache(maxsize=64)
 def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adaptive: bool,
-            predicts: bool = False) -> Layout:
+            weighs: bool) -> Layout:
     n = len(states)
     return Layout("filter state", [
         Signal("x", "-", f"the state ({', '.join(states)})", n),
@@ -141,7 +147,7 @@ def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adap
         Signal("qscale", "-", "the process noise's innovation-adaptive scale", 1 if adaptive else 0),
         Signal("rcor", "-", "the accepted fixes' normalised innovations: the last, and the running means of "
                             "its products with the one before and of its square (residual prediction)",
-               3 if predicts else 0),
+               3 if weighs else 0),
     ])
 
 
@@ -155,7 +161,7 @@ def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) ->
     z[lay.slot("P")] = d.initial_covariance().ravel(order="F")
     z[lay.slot("buf")] = yaw0
     z[lay.slot("qscale")] = 1.0
-    if d.residual_prediction:
+    if weighs_prediction(d):
         z[lay.slot("rcor")] = (0.0, 0.0, 1.0)  # white innovations of unit variance
     return z
 
@@ -354,17 +360,15 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         qd = _dot(hc, r_ + E @ r_, o)
         eps_next = o.if_else(acc, innov, qd * eps)
         gain_next = o.if_else(acc, K, gain)
-        if nz.residual_corr_fixes > 0:
-            rcor = _residual_correlation(d, zs.rcor, resid, accept, o)
+        weight = 1.0  # seed 004 as printed
+        if weighs_prediction(d):
+            extra["rcor"] = _residual_correlation(d, zs.rcor, resid, accept, o)
             # the corrections between two fixes add up to the weight times the last fix's own (a geometric
             # series of qd ~ 1 - hK: the paper's, unweighted, add up to (1 - hK) / (hK) times it)
             hk = _dot(hc, gain, o)
-            weight = _prediction_weight(d, rcor, o) * hk / o.fmax(1.0 - hk, 1e-3)
-        else:  # seed 004 as printed
-            rcor, weight = zs.rcor, 1.0
+            weight = _prediction_weight(d, extra["rcor"], o) * hk / o.fmax(1.0 - hk, 1e-3)
         x = o.if_else(acc, x, x + gain * (weight * qd * eps))
         eps, gain = eps_next, gain_next
-        extra["rcor"] = rcor
 
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
