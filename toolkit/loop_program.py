@@ -170,10 +170,13 @@ class LoopProgram:
         return out + (z,) if final_state else out
 
     def run_batch(self, U: np.ndarray, z0: np.ndarray, pv: np.ndarray, theta: np.ndarray, *, meas: bool = False,
-                  final_state: bool = False):
+                  final_state: bool = False, out: tuple[np.ndarray, np.ndarray] | None = None):
         """:meth:`run` for many cases at once: ``U`` (cases, samples, inputs), ``z0`` (cases, states),
         ``pv`` (cases, plant parameters), ``theta`` (cases, run-time parameters); returns Y, E[, M][, z]
-        with a leading cases axis. One call of the lane kernel; case by case on the other backends."""
+        with a leading cases axis. One call of the lane kernel; case by case on the other backends.
+        ``out``: C-ordered float arrays (cases, samples, truth) and (cases, samples, extra) that receive
+        Y and E (a caller that rolls out block after block reuses its memory instead of faulting in
+        fresh pages every call)."""
         U = np.asarray(U, float)
         if U.ndim != 3 or U.shape[2] != self.nin:
             raise LoopError(f"run_batch: U must be (cases, samples, {self.nin}), got {U.shape}")
@@ -185,10 +188,18 @@ class LoopProgram:
                 raise LoopError(f"run_batch: {what} must be ({n_cases}, {k}), got {a.shape}")
         if self.lanes is None:
             runs = [self.run(U[c], z0[c], pv[c], theta[c], meas=meas, final_state=final_state) for c in range(n_cases)]
-            return tuple(np.stack([r[i] for r in runs]) for i in range(len(runs[0]))) if runs else ()
-        z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, keep=(1, 2, 3) if meas else (1, 2))
-        out = (Y, E) + ((M,) if meas else ())
-        return out + (z_end,) if final_state else out
+            res = tuple(np.stack([r[i] for r in runs]) for i in range(len(runs[0]))) if runs else ()
+            if out is not None and runs:
+                out[0][...], out[1][...] = res[0], res[1]
+                res = tuple(out) + res[2:]
+            return res
+        if out is None:
+            z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, keep=(1, 2, 3) if meas else (1, 2))
+        else:
+            M = np.empty((n_cases, n, len(MEAS))) if meas else None
+            z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, outputs=[out[0], out[1], M])
+        res = (Y, E) + ((M,) if meas else ())
+        return res + (z_end,) if final_state else res
 
     def step_once(self, z, u, pv, theta):
         """One sample through the compiled step (casadi's VM without a compiler): (z_next, y, e, m)."""

@@ -276,6 +276,22 @@ BLOCK = 32
 """Cases rolled out together by :func:`evaluate_cases`; bounds the memory a batch holds at once
 (one manoeuvre's inputs and signals: 32 cases x 5 s at 1 kHz x 64 numbers, about 80 MB)."""
 
+_WORKSPACE: dict[str, np.ndarray] = {}
+"""The rollouts' input and signal arrays of this process, kept from one block (and one task) to the
+next: fresh arrays of this size come from the operating system as untouched pages, and faulting
+them in (zero-filled) cost about a tenth of a sweep worker's time (``benchmarks/bench_sweep.py``: 522
+against 482 ns per case and step)."""
+
+
+def _workspace(name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialised C-ordered float array of ``shape``, in memory reused between calls with the same
+    ``name`` (the previous array of that name is invalid afterwards)."""
+    size = int(np.prod(shape))
+    buf = _WORKSPACE.get(name)
+    if buf is None or buf.size < size:
+        buf = _WORKSPACE[name] = np.empty(size)
+    return buf[:size].reshape(shape)
+
 
 def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
     """Rows for a batch of cases (the unit of work an executor runs), case by case and point by point
@@ -299,7 +315,7 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
             for i, (_, _, _, mans) in enumerate(setup):
                 by_len.setdefault(samples(prog.spec, mans[m]), []).append(i)
             for n, idx in by_len.items():
-                U = np.empty((len(idx), n, prog.nin))  # filled in place, case by case
+                U = _workspace("inputs", (len(idx), n, prog.nin))  # filled in place, case by case
                 z0, pv = [], []
                 for q, i in enumerate(idx):
                     true, sens, dist, mans = setup[i]
@@ -310,7 +326,9 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
                     pv.append(p)
                 z0, pv = np.array(z0), np.array(pv)
                 for j in range(len(points)):
-                    Y, E = prog.run_batch(U, z0, pv, thetas[j][idx])
+                    Y, E = prog.run_batch(U, z0, pv, thetas[j][idx],
+                                          out=(_workspace("truth", (len(idx), n, len(TRUTH))),
+                                               _workspace("extra", (len(idx), n, len(EXTRA)))))
                     for q, i in enumerate(idx):
                         rollouts[j][i].append(_summary(Y[q], E[q], nz_max))
                 del U

@@ -14,6 +14,7 @@ from evstab.plants.maneuvers import step_steer
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit import closed_loop as cl, lanes, sweep as sw
 from evstab.toolkit.compiled import compiler
+from evstab.toolkit.loop_program import LoopProgram
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
@@ -176,6 +177,33 @@ def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep(
         for a, b in ((Y[i], y), (E[i], e), (M[i], m), (z[i], zi)):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
             np.testing.assert_array_equal(a, b)
+
+
+def test_run_batch_into_given_arrays_returns_them_with_the_same_numbers():
+    """``out=`` (the sweep's reused memory) changes where Y and E land, not what they hold; arrays
+    holding garbage from an earlier block are overwritten everywhere (NaN-filled here)."""
+    cfg = sw.SweepConfig(load_vehicle("compact-ev"))
+    cases = sw.sweep_cases(quick=True)[:5]  # 5 cases: one full block of lanes and a partial one
+    prog = cl.program(cfg.spec())
+    runs = [sw.case_inputs(cfg, c, prog)[1][1] for c in cases]  # the step steer of each case
+    theta = np.array([prog.theta(gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error) for c in cases])
+    args = (np.stack([r[0] for r in runs]), np.stack([r[1] for r in runs]), np.stack([r[2] for r in runs]), theta)
+    Y, E = prog.run_batch(*args)
+    out = (np.full(Y.shape, np.nan), np.full(E.shape, np.nan))
+    Y2, E2 = prog.run_batch(*args, out=out)
+    assert Y2 is out[0] and E2 is out[1]
+    np.testing.assert_array_equal(Y2, Y)
+    np.testing.assert_array_equal(E2, E)
+    # the same on the case-by-case backend (casadi's generated C)
+    other = LoopProgram(prog.spec, lanes=False)
+    assert other.backend == "c"
+    first = [a[:1] for a in args]  # one case: this backend runs them one by one
+    Yc, Ec = other.run_batch(*first)
+    out = (np.full(Yc.shape, np.nan), np.full(Ec.shape, np.nan))
+    Y3, E3 = other.run_batch(*first, out=out)
+    assert Y3 is out[0] and E3 is out[1]
+    np.testing.assert_array_equal(Y3, Yc)
+    np.testing.assert_array_equal(E3, Ec)
 
 
 def test_sweep_rows_do_not_depend_on_the_batching():
