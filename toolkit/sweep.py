@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -276,21 +277,28 @@ BLOCK = 32
 """Cases rolled out together by :func:`evaluate_cases`; bounds the memory a batch holds at once
 (one manoeuvre's inputs and signals: 32 cases x 5 s at 1 kHz x 64 numbers, about 80 MB)."""
 
-_WORKSPACE: dict[str, np.ndarray] = {}
-"""The rollouts' input and signal arrays of this process, kept from one block (and one task) to the
-next: fresh arrays of this size come from the operating system as untouched pages, and faulting
-them in (zero-filled) cost about a tenth of a sweep worker's time (``benchmarks/bench_sweep.py``: 522
-against 482 ns per case and step)."""
+_WORKSPACE = threading.local()
+"""The rollouts' input and signal arrays of a thread (``arrays``: name -> flat array), kept from one
+block (and one task) to the next: fresh arrays of this size come from the operating system as
+untouched pages, and faulting them in (zero-filled) cost about a tenth of a sweep worker's time
+(``benchmarks/bench_sweep.py``: 522 against 482 ns per case and step). Per thread, because Dask's
+in-process cluster runs its workers as threads of one process."""
 
 
 def _workspace(name: str, shape: tuple[int, ...]) -> np.ndarray:
-    """An uninitialised C-ordered float array of ``shape``, in memory reused between calls with the same
-    ``name`` (the previous array of that name is invalid afterwards)."""
+    """An uninitialised C-ordered float array of ``shape``, in this thread's memory reused between calls
+    with the same ``name`` (the previous array of that name is invalid afterwards)."""
+    arrays = _WORKSPACE.__dict__.setdefault("arrays", {})
     size = int(np.prod(shape))
-    buf = _WORKSPACE.get(name)
+    buf = arrays.get(name)
     if buf is None or buf.size < size:
-        buf = _WORKSPACE[name] = np.empty(size)
+        buf = arrays[name] = np.empty(size)
     return buf[:size].reshape(shape)
+
+
+def release_workspace() -> None:
+    """Free this thread's rollout arrays (a sweep run in the calling process does, when it is done)."""
+    _WORKSPACE.__dict__.pop("arrays", None)
 
 
 def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
@@ -368,9 +376,12 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
     if executor == "local":
         workers = workers or os.cpu_count() or 1
         if workers == 1:
-            for i, b in enumerate(batches):
-                results[i] = evaluate_cases(cfg, b, points, linear)
-                bar.update(len(b))
+            try:
+                for i, b in enumerate(batches):
+                    results[i] = evaluate_cases(cfg, b, points, linear)
+                    bar.update(len(b))
+            finally:
+                release_workspace()
         else:
             program(cfg.spec()).compile()  # once here; the forked workers inherit the loaded library
             import multiprocessing as mp

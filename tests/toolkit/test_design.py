@@ -82,6 +82,22 @@ def test_dask_and_local_executors_give_identical_rows():
     assert local == dask == serial  # exact: same seeds, same compiled code, order restored
 
 
+def test_workers_in_threads_of_one_process_give_the_serial_rows():
+    # Dask's in-process cluster runs its workers as threads; the compiled loop releases the GIL, so
+    # two blocks really run at once and must not share the rollouts' reused arrays
+    from concurrent.futures import ThreadPoolExecutor
+    cases = sw.sweep_cases(quick=True)[:8]
+    halves = [cases[:4], cases[4:]]
+    def rows(h):  # spectral_radius is NaN without the linear verdicts: compared as text
+        return [{k: ("nan" if isinstance(v, float) and np.isnan(v) else v) for k, v in r.items()}
+                for r in sw.evaluate_cases(CFG, h, [sw.PAPER], linear=False)]
+
+    serial = [rows(h) for h in halves]
+    for _ in range(3):  # a race shows on some runs, not necessarily on the first
+        with ThreadPoolExecutor(2) as pool:
+            assert list(pool.map(rows, halves)) == serial
+
+
 def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
     # a real scheduler on 127.0.0.1 and two worker processes (spawned: each imports evstab and loads
     # the compiled loop from the cache), started and stopped here; blocks of cases per task
