@@ -186,6 +186,12 @@ class LoopProgram:
                            ("theta", theta, len(self.spec.theta_names))):
             if a.shape != (n_cases, k):
                 raise LoopError(f"run_batch: {what} must be ({n_cases}, {k}), got {a.shape}")
+        if out is not None:
+            for what, a, k in (("out[0] (truth)", out[0], len(TRUTH)), ("out[1] (extra)", out[1], len(EXTRA))):
+                if not (isinstance(a, np.ndarray) and a.shape == (n_cases, n, k) and a.dtype == float
+                        and a.flags.c_contiguous):
+                    raise LoopError(f"run_batch: {what} must be a C-ordered float ({n_cases}, {n}, {k}) array, got "
+                                    f"{getattr(a, 'dtype', type(a).__name__)} {getattr(a, 'shape', '')}")
         if self.lanes is None:
             runs = [self.run(U[c], z0[c], pv[c], theta[c], meas=meas, final_state=final_state) for c in range(n_cases)]
             res = tuple(np.stack([r[i] for r in runs]) for i in range(len(runs[0]))) if runs else ()

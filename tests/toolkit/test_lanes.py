@@ -197,6 +197,8 @@ def test_run_batch_into_given_arrays_returns_them_with_the_same_numbers():
         assert Y2 is out[0] and E2 is out[1]
         np.testing.assert_array_equal(Y2, Y)
         np.testing.assert_array_equal(E2, E)
+        with pytest.raises(cl.LoopError, match=r"out\[1\] \(extra\) must be a C-ordered float"):
+            program.run_batch(*a, out=(out[0], out[1][:, :-1]))  # one sample short: refused, nothing written
 
 
 def test_sweep_rows_do_not_depend_on_the_batching():
