@@ -339,7 +339,6 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
                                                _workspace("extra", (len(idx), n, len(EXTRA)))))
                     for q, i in enumerate(idx):
                         rollouts[j][i].append(_summary(Y[q], E[q], nz_max))
-                del U
         for j, point in enumerate(points):
             for i, c in enumerate(block):
                 rows[(s + i, j)] = _row(cfg, c, point, rollouts[j][i], linear)
