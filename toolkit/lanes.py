@@ -540,14 +540,16 @@ class LaneRollout:
         return z_end, outputs
 
 
-def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout") -> LaneRollout | None:
+def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout",
+                    flags: tuple[str, ...] = CFLAGS) -> LaneRollout | None:
     """The lane kernel of ``fn`` (a casadi SX function, or a callable returning one) from the compiled
-    cache, built when missing; None without a C compiler or when the compiler fails."""
+    cache, built when missing (with ``flags``: :data:`CFLAGS` or others that keep its arithmetic IEEE);
+    None without a C compiler or when the compiler fails."""
     from .compiled import compile_source, compiler
     if compiler() is None:
         return None
     fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
-    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles)), key, CFLAGS,
+    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles)), key, flags,
                          "casadi's generated C")
     if lib is None:
         return None

@@ -11,13 +11,14 @@ epigraph form for IPOPT::
          sigma_j(phi) >= SIGMA_MIN           stability with a margin, every tuning case j
          phi within BOUNDS of the start
 
-``J_i`` and its gradient come from differentiable casadi rollouts of the loop: the
-same ``loop_step`` the sweep compiles (plant, sensors, estimator, controller,
-actuators built from the same model definitions), rolled out by ``mapaccum`` over
-the manoeuvre, with ``jacobian(cost, phi)`` by casadi's algorithmic
-differentiation; the cost-and-gradient function is generated as C and compiled
-once (cached). ``sigma_j`` is the decay rate of the sampled multi-rate loop with the
-estimator (``-ln(rho) * f_gps`` from the monodromy's spectral radius), evaluated by
+``J_i`` and its gradient come from casadi's algorithmic differentiation of the same
+``loop_step`` the sweep compiles (plant, sensors, estimator, controller, actuators built
+from the same model definitions): in forward mode, the step carrying its tangents along
+``phi`` and the cost's sums, rolled out as a lane kernel four runs at a time
+(:func:`_forward_step`); without a lane kernel in reverse mode, ``jacobian(cost, phi)``
+through a ``mapaccum`` rollout generated as C. Both are compiled once (cached).
+``sigma_j`` is the decay rate of the sampled multi-rate loop with the estimator
+(``-ln(rho) * f_gps`` from the monodromy's spectral radius), evaluated by
 :func:`toolkit.stability.estimator_loop` with finite differences (a spectral radius
 has no closed-form derivative). Reproducible: the cases carry their seeds and
 IPOPT is deterministic.
@@ -40,7 +41,7 @@ import numpy as np
 
 from evstab.plants import TRUTH
 
-from . import closed_loop, sweep
+from . import closed_loop, lanes as lanes_mod, sweep
 from .compiled import CFunction, cache_key, compile_library
 from .sweep import Case, DesignPoint, SweepConfig
 from evstab.plants.errors import SettingsError
@@ -108,6 +109,47 @@ class _Function(ca.Callback):
         self._jac = Jac()
         return self._jac
 
+
+def _cost_errors(Y, E):
+    """The cost's four error signals (sideslip estimate, yaw-rate tracking, sideslip tracking, yaw
+    moment) from the truth ``Y`` and extra ``E`` (signals x samples, casadi or numpy)."""
+    it, ie = TRUTH.index, closed_loop.EXTRA.index
+    return (E[ie("beta_est"), :] - Y[it("beta"), :], Y[it("yaw_rate"), :] - E[ie("yaw_rate_ref"), :],
+            Y[it("beta"), :] - E[ie("beta_ref"), :], E[ie("yaw_moment"), :])
+
+
+def _cost_of_sums(sums, n: int, nz_max: float):
+    """:func:`sweep.cost_of` from the error signals' sums of squares (in :func:`_cost_errors`' order)
+    over ``n`` samples; linear in them, so their derivatives give the cost's."""
+    return sweep.cost_of(sums[1] / n, sums[2] / n, sums[0] / n, sums[3] / n, nz_max)
+
+
+def _forward_step(spec, k: int) -> ca.Function:
+    """The loop step carrying its tangents along ``k`` parameter directions and the cost's sums:
+    ``(z_aug, u, p, theta_aug) -> z_aug_next`` with ``z_aug = [z, vec(dz), s, vec(ds)]`` (``dz`` the
+    state's derivative (states x k), ``s`` the error signals' running sums of squares, ``ds`` theirs
+    (4 x k)) and ``theta_aug = [theta, vec(dtheta)]``: forward-mode differentiation of the same SX
+    step the sweep runs (casadi ``jtimes``), rolled out as a lane kernel. The schedule's tables stay
+    casadi's own selections here (a call node has no derivative in a lane kernel)."""
+    step = closed_loop._build(spec, chunk=False)[0]
+    nz, nth = step.nnz_in(0), step.nnz_in(3)
+    z, u, pv, th = (ca.SX.sym(name, step.nnz_in(i)) for i, name in enumerate(("z", "u", "p", "theta")))
+    dz, dth = ca.SX.sym("dz", nz, k), ca.SX.sym("dtheta", nth, k)
+    s, ds = ca.SX.sym("s", 4), ca.SX.sym("ds", 4, k)
+    zn, y, e, _ = step(z, u, pv, th)
+    err = ca.vertcat(*_cost_errors(y, e))
+    tangent = ca.jtimes(ca.vertcat(zn, err), ca.vertcat(z, th), ca.vertcat(dz, dth))
+    ds_n = ds + 2 * ca.repmat(err, 1, k) * tangent[nz:, :]
+    return ca.Function("tune_forward", [ca.vertcat(z, ca.vec(dz), s, ca.vec(ds)), u, pv, ca.vertcat(th, ca.vec(dth))],
+                       [ca.vertcat(zn, ca.vec(tangent[:nz, :]), s + err ** 2, ca.vec(ds_n))])
+
+
+FORWARD_CFLAGS = ("-O1",) + lanes_mod.CFLAGS[1:]
+"""The forward-mode kernel is large (56k instructions for the two-track loop, 86k for the multi-body
+car's): at -O1 gcc compiles the two-track's in half the time of -O3 (17 against 35 s) and it runs 5 %
+slower (measured); the same IEEE arithmetic either way."""
+
+
 def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
     phi = ca.MX.sym("phi", len(DesignPoint.TUNED))
     U = ca.MX.sym("U", prog.nin, n)
@@ -123,34 +165,70 @@ def _cost_function(prog, n: int, nz_max: float) -> ca.Function:
                     rest)
     acc = prog.step.mapaccum("tune_acc", n)
     _, Ys, Es, _ = acc(z0, U, ca.repmat(pv, 1, n), ca.repmat(th, 1, n))
-    it, ie = TRUTH.index, closed_loop.EXTRA.index  # rows of the (signals x samples) casadi matrices
-    e_est = Es[ie("beta_est"), :] - Ys[it("beta"), :]
-    e_r = Ys[it("yaw_rate"), :] - Es[ie("yaw_rate_ref"), :]
-    e_b = Ys[it("beta"), :] - Es[ie("beta_ref"), :]
-    nz = Es[ie("yaw_moment"), :]
-    ms = [ca.sumsqr(e) / n for e in (e_est, e_r, e_b, nz)]
-    cost = sweep.cost_of(ms[1], ms[2], ms[0], ms[3], nz_max)
+    cost = _cost_of_sums([ca.sumsqr(e) for e in _cost_errors(Ys, Es)], n, nz_max)
     grad = ca.jacobian(cost, phi)
     return ca.Function("tune_cost", [phi, U, z0, pv, rest], [cost, grad])
 
 
 class RolloutCost:
-    """Compiled ``(phi, case run) -> (cost, d cost / d phi)`` for one loop structure and rollout length."""
+    """Compiled ``(phi, case run) -> (cost, d cost / d phi)`` for one loop structure and rollout length.
 
-    def __init__(self, cfg: SweepConfig):
+    With a C compiler the runs go through the forward-mode lane kernel (:func:`_forward_step`), four
+    at a time (:meth:`batch`); ``lanes=False``, or without one, through casadi's reverse-mode
+    differentiation of the ``mapaccum`` rollout (:func:`_cost_function`), one run per call. The two
+    agree to rounding (``tests/toolkit/test_design.py``)."""
+
+    def __init__(self, cfg: SweepConfig, lanes: bool = True):
         self.cfg = cfg
         self.prog = closed_loop.program(cfg.spec())
         self.n = int(round(sweep.MANEUVER_DURATION / cfg.dt))
         self.nz_max = cfg.base_design().nz_max
-        self.fn = _cost_function(self.prog, self.n, self.nz_max)
-        key = cache_key("tune", cfg.spec(), self.n)
-        lib = compile_library([self.fn], key)
-        self.cf = CFunction(ctypes.CDLL(str(lib)), "tune_cost") if lib is not None else None
+        k, spec = len(DesignPoint.TUNED), closed_loop.traced(self.prog.spec)  # one kernel for every calibration
+        self.lanes = lanes_mod.compile_rollout(
+            lambda: _forward_step(spec, k), cache_key("tune_lanes", spec, k, closed_loop.SLOTS, lanes_mod.WIDTH,
+                                                      lanes_mod.machine_tag()),
+            closed_loop.LANE_ROLES, flags=FORWARD_CFLAGS) if lanes else None
+        self.cf = None
+        if self.lanes is None:
+            self.fn = _cost_function(self.prog, self.n, self.nz_max)
+            lib = compile_library([self.fn], cache_key("tune", cfg.spec(), self.n))
+            self.cf = CFunction(ctypes.CDLL(str(lib)), "tune_cost") if lib is not None else None
+
+    def _theta(self, phi: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The run-time parameters at ``phi`` (the ECU's calibration with the tuned entries, then the
+        case's ``rest``) and their derivative by ``phi``."""
+        names, base = self.prog.spec.theta_names, self.prog.theta()
+        tuned = {name: j for j, name in enumerate(DesignPoint.TUNED)}
+        th = np.concatenate([base[:len(names) - len(rest)], rest])
+        dth = np.zeros((len(names), len(phi)))
+        for name, j in tuned.items():
+            i = names.index(name)
+            th[i] = dth[i, j] = np.exp(phi[j])
+        return th, dth
+
+    def batch(self, phi: np.ndarray, runs: list, rests: list) -> list[tuple[float, np.ndarray]]:
+        """:meth:`__call__` for many runs (``runs[i]`` with ``rests[i]``), one lane-kernel call."""
+        if self.lanes is None:
+            return [self(phi, run, rest) for run, rest in zip(runs, rests)]
+        for U, _, _ in runs:
+            if U.shape[0] != self.n:
+                raise SettingsError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
+        k, nz = len(phi), len(runs[0][1])
+        z0 = np.zeros((len(runs), nz * (1 + k) + 4 * (1 + k)))
+        z0[:, :nz] = [z for _, z, _ in runs]
+        thetas = [self._theta(phi, rest) for rest in rests]
+        th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
+        z_end, _ = self.lanes(z0, [np.stack([U for U, _, _ in runs]), np.array([p for _, _, p in runs]), th], self.n)
+        sums = z_end[:, nz * (1 + k):]
+        return [(float(_cost_of_sums(q[:4], self.n, self.nz_max)),
+                 _cost_of_sums(q[4:].reshape((4, k), order="F"), self.n, self.nz_max)) for q in sums]
 
     def __call__(self, phi: np.ndarray, run, rest: np.ndarray) -> tuple[float, np.ndarray]:
         U, z0, pv = run
         if U.shape[0] != self.n:
             raise SettingsError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
+        if self.lanes is not None:
+            return self.batch(phi, [run], [rest])[0]
         if self.cf is not None:
             # casadi matrices are column-major: a C-contiguous (samples x inputs) array is the
             # (inputs x samples) matrix the function takes, without a copy
@@ -200,11 +278,12 @@ _WORKER: dict = {}
 
 def _eval_subset(phi: np.ndarray, idx: list[int]):
     rc, data = _WORKER["rc"], _WORKER["data"]
+    owner = [i for i in idx for _ in data[i][0]]
+    vals = rc.batch(phi, [run for i in idx for run in data[i][0]], [data[i][1] for i in owner])
     out = []
     for i in idx:
-        runs, rest = data[i]
-        vals = [rc(phi, run, rest) for run in runs]
-        out.append((i, float(np.mean([v[0] for v in vals])), np.mean([v[1] for v in vals], axis=0)))
+        mine = [v for o, v in zip(owner, vals) if o == i]
+        out.append((i, float(np.mean([v[0] for v in mine])), np.mean([v[1] for v in mine], axis=0)))
     return out
 
 
