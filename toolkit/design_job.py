@@ -11,9 +11,9 @@ report DIR`` can redraw it without recomputing):
    worst case when it lies outside the tuning set and tunes again;
 4. the sweep of the tuned design; the comparison (worst case, stability);
 5. the limit manoeuvres (:mod:`toolkit.limits`: FMVSS 126 on mu 1.0 and 0.6, ISO 3888-1,
-   step steer into saturation) for no control, the paper design and the tuning's candidate; a
-   candidate worse than no control anywhere is stepped back towards the paper design (a
-   constraint, not a cost term), and an unchanged design says so;
+   step steer into saturation) for no control, the paper design and the tuning's candidate; when
+   a candidate is worse than no control anywhere, the tuning runs again in smaller boxes around
+   the paper design (a constraint, not a cost term), and an unchanged design says so;
 6. the speed-grid analysis of both designs (observability, estimator poles, loop
    poles in s and z, margins) and the pole maps' data;
 7. time responses of the standard manoeuvres (no control, paper, tuned);
@@ -270,43 +270,66 @@ def compare(rows: list[dict]) -> dict:
 
 
 # ------------------------------------------------------------------ the job
-def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, progress, log):
-    """Tuning with cutting-plane rounds over the sweep.
+TRUST_RADII = (1.0, 0.5, 0.25)
+"""Half-widths (log space) of the boxes around the paper design that the tuning runs in again, one
+after the other, when its candidate fails the limit check: each parameter within a factor e^1
+(2.7), e^0.5 (1.6) and e^0.25 (1.3) of the paper design's (the first tuning's box is
+:data:`toolkit.tuning.BOUNDS`, e^2)."""
 
-    Round 1 tunes on the paper design's worst cases plus the nominal case. After each
+
+def _tuning_ids(cases, rows_paper, quick):
+    """The first tuning set: the paper design's worst cases, the hardest cases it still holds and
+    the nominal case."""
+    n_tune, n_keep = (2, 2) if quick else (4, 8)
+    ranked = sorted(rows_paper, key=lambda r: -r["cost"])
+    nominal_id = next(c.case_id for c in cases if c.cf_scale == 1.0 and c.cr_scale == 1.0 and c.group == "stiffness")
+    ids = [r["case_id"] for r in ranked[:n_tune]]
+    ids += [r["case_id"] for r in ranked if r["stable"]][:n_keep]  # the hardest cases the paper design holds
+    ids.append(nominal_id)
+    return list(dict.fromkeys(ids))  # once each (a worst case may be one the paper design holds)
+
+
+def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, progress, log, *, ids=None,
+                 bounds=None, displacement=None):
+    """Tuning with cutting-plane rounds over the sweep, within ``bounds`` (log space; default
+    :data:`toolkit.tuning.BOUNDS`) around the paper design.
+
+    Round 1 tunes on ``ids`` (default :func:`_tuning_ids`), with the FMVSS 126 runs ``displacement``
+    (:func:`toolkit.limits.displacement_runs`) as constraints. After each
     round the candidate is swept; cases where the paper design is stable and the
     candidate is not, and the candidate's worst case, join the tuning set, and the
     next round starts again from the paper design (feasible for every cap). The result is the candidate with the
     smallest worst-case cost among those stable wherever the paper design is stable
     (the paper design itself if no candidate is).
+
+    Returns ``(point, its sweep rows, the rounds' records, the tuning set as it ended)``.
     """
-    from .tuning import REGRESS_FACTOR, REGRESS_OFFSET, tune
+    from .tuning import BOUNDS, REGRESS_FACTOR, REGRESS_OFFSET, tune
     paper = cfg.paper
-    n_tune, n_keep, max_iter, max_rounds = (2, 2, 12, 2) if quick else (4, 8, 25, 3)
+    bounds = BOUNDS if bounds is None else bounds
+    max_iter, max_rounds = (12, 2) if quick else (25, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}
     paper_worst = max(r["cost"] for r in rows_paper)
-    ranked = sorted(rows_paper, key=lambda r: -r["cost"])
-    nominal_id = next(c.case_id for c in cases if c.cf_scale == 1.0 and c.cr_scale == 1.0 and c.group == "stiffness")
-    ids = [r["case_id"] for r in ranked[:n_tune]]
-    ids += [r["case_id"] for r in ranked if r["stable"]][:n_keep]  # the hardest cases the paper design holds
-    if nominal_id not in ids:
-        ids.append(nominal_id)
+    ids = list(_tuning_ids(cases, rows_paper, quick) if ids is None else ids)
     start, rounds, best = paper, [], None
     for k in range(max_rounds):
         caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
                 for i in ids]
-        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps,
+        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps, bounds=bounds,
+                   displacement=displacement,
                    workers=workers if executor == "local" else None, progress=progress)
         cand = dataclasses.replace(res.point, name="tuned")
         rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
                             progress=progress)
         lost = [r["case_id"] for r in rows if paper_by[r["case_id"]]["stable"] and not r["stable"]]
         worst = max(rows, key=lambda r: r["cost"])
-        rounds.append(dict(cases=list(res.cases), iterations=res.iterations, status=res.status,
-                           worst_start=res.worst_start, worst_tuned=res.worst_tuned,
+        rounds.append(dict(bounds_factor=float(np.exp(bounds)), cases=list(res.cases), iterations=res.iterations,
+                           status=res.status, worst_start=res.worst_start, worst_tuned=res.worst_tuned,
                            sweep_worst_cost=worst["cost"], stability_lost_cases=lost))
-        log(f"  tuning round {k + 1}: {res.iterations} IPOPT iterations, worst case of the sweep "
-            f"{worst['cost']:.4g} (paper {paper_worst:.4g}), stability lost in {len(lost)} case(s)")
+        log(f"  tuning round {k + 1} (each parameter within x{np.exp(bounds):.3g} of the paper design's): "
+            f"{res.iterations} IPOPT iterations, tuning cases' worst {res.worst_tuned:.4g}; worst case of the "
+            f"sweep {worst['cost']:.4g} (paper "
+            f"{paper_worst:.4g}), stability lost in {len(lost)} case(s)")
         ok = not lost
         if ok and (best is None or worst["cost"] < best[2]):
             best = (cand, rows, worst["cost"])
@@ -322,39 +345,49 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
     if best is None:  # no candidate kept every stable case: keep the paper design's gains
         rows = [dict(r, design="tuned") for r in rows_paper]
         best = (dataclasses.replace(paper, name="tuned"), rows, paper_worst)
-    return best[0], best[1], rounds
+    return best[0], best[1], rounds, ids
 
 
-def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, scheduler, workers, progress, log):
+def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_start, log):
     """The tuned design under the limit constraint (:mod:`toolkit.limits`).
 
-    The tuning's candidate, then points on the way back to the paper design in log space
-    (``phi_paper + s (phi_cand - phi_paper)``, ``s`` by bisection to 1/8), are driven through the
-    limit manoeuvres and swept; a point is accepted when it is no worse than no control on every
-    limit case (where the paper design is), passes FMVSS 126 and as many limit runs as the paper
-    design, loses no case of the sweep the paper design holds, and beats the paper design's worst
-    case by :data:`BETTER_MARGIN`. The tuned design is the candidate if accepted, else the accepted
-    point with the largest step. None: the paper design, unchanged (and the summary says so).
+    The tuning's candidate is driven through the limit manoeuvres; it is accepted when it is no
+    worse than no control on every limit case (where the paper design is), passes FMVSS 126 and
+    as many limit runs as the paper design, loses no case of the sweep the paper design holds, and
+    beats the paper design's worst case by :data:`BETTER_MARGIN`. Otherwise the tuning runs again
+    in smaller boxes around the paper design (:data:`TRUST_RADII`, ``retune(radius)`` returning a
+    candidate and its sweep rows) and each candidate is checked the same way; the first accepted
+    is the tuned design. An optimum in a smaller box, not a point on the way back to one
+    candidate: what is accepted does not hang on where one IPOPT path ended. None accepted: the
+    paper design, unchanged (and the summary says so).
+
+    ``limits_start``: ``(limit rows of no control, of the paper design, the FMVSS 126 A cache)``.
 
     Returns ``(point, sweep rows, limit rows of no control / paper / tuned, selection log)``."""
     from . import limits as lm
-    from .tuning import phi_of, point_of
-    a_cache: dict = {}
-    none = lm.run_limits(cfg, None, a_cache=a_cache)
-    paper_lim = lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
+    from .tuning import BOUNDS
+    none, paper_lim, a_cache = limits_start
     jp = lm.judge(paper_lim, none)
     paper_worst = max(r["cost"] for r in rows_paper)
     paper_stable = {r["case_id"] for r in rows_paper if r["stable"]}
-    phi0, phi1 = phi_of(cfg.paper), phi_of(cand)
     tried = []
 
-    def check(s):
-        point = point_of(phi0 + s * (phi1 - phi0), "tuned")
-        rows = rows_cand if s == 1.0 else sw.run_sweep(cfg, cases, [point], executor=executor, scheduler=scheduler,
-                                                       workers=workers, progress=progress)
+    def is_paper(point):
+        return all(getattr(point, k) == getattr(cfg.paper, k) for k in sw.DesignPoint.TUNED)
+
+    def check(point, rows, radius):
+        entry = {"bounds_factor": float(np.exp(radius)), "k_beta": point.k_beta, "k_gamma": point.k_gamma,
+                 "worst_cost": max(r["cost"] for r in rows)}
+        if is_paper(point):  # the tuning kept no candidate: nothing to drive
+            tried.append({**entry, "admissible": jp["admissible"], "fmvss126_pass": jp["fmvss126_pass"],
+                          "limit_runs_passed": jp["limit_runs_passed"], "limit_runs": jp["limit_runs"],
+                          "accepted": False, "rejected_because": "the tuning kept no candidate (every one lost a "
+                                                                 "case the paper design holds): the paper design"})
+            log(f"  limit check, box x{np.exp(radius):.3g}: no candidate")
+            return None
         lim = lm.run_limits(cfg, point, a_cache=a_cache)
         j = lm.judge(lim, none)
-        worst = max(r["cost"] for r in rows)
+        worst = entry["worst_cost"]
         lost = sorted(r["case_id"] for r in rows if r["case_id"] in paper_stable and not r["stable"])
         why = []
         if jp["admissible"] and not j["admissible"]:
@@ -368,25 +401,18 @@ def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, executor, schedu
             why.append(f"loses stability in sweep case(s) {' '.join(map(str, lost))}")
         if not worst < (1.0 - BETTER_MARGIN) * paper_worst:
             why.append(f"worst cost {worst:.4g} not {BETTER_MARGIN:.0%} below the paper design's {paper_worst:.4g}")
-        tried.append({"step": s, "k_beta": point.k_beta, "k_gamma": point.k_gamma, "worst_cost": worst,
-                      "admissible": j["admissible"], "fmvss126_pass": j["fmvss126_pass"],
+        tried.append({**entry, "admissible": j["admissible"], "fmvss126_pass": j["fmvss126_pass"],
                       "limit_runs_passed": j["limit_runs_passed"], "limit_runs": j["limit_runs"],
                       "accepted": not why, "rejected_because": "; ".join(why)})
-        log(f"  limit check, step {s:g} towards the tuned point (K_beta {point.k_beta:.4g}, K_gamma "
+        log(f"  limit check, the candidate of the box x{np.exp(radius):.3g} (K_beta {point.k_beta:.4g}, K_gamma "
             f"{point.k_gamma:.4g}): " + ("accepted" if not why else "rejected, " + "; ".join(why)))
         return (point, rows, none + paper_lim + lim) if not why else None
 
-    # the candidate itself, else bisection on the step (largest accepted step to 1/8)
-    found = check(1.0)
-    if found is None:
-        lo, hi = 0.0, 1.0
-        while hi - lo > 0.125 + 1e-12:
-            mid = 0.5 * (lo + hi)
-            got = check(mid)
-            if got is not None:
-                lo, found = mid, got
-            else:
-                hi = mid
+    found = check(cand, rows_cand, BOUNDS)
+    for radius in TRUST_RADII:
+        if found is not None:
+            break
+        found = check(*retune(radius), radius)
     if found is not None:
         return (*found, tried)
     point = dataclasses.replace(cfg.paper, name="tuned")
@@ -454,7 +480,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         The ``design.json`` document.
     """
     from .report import write_report
-    from .tuning import SIGMA_MIN, BOUNDS
+    from .fmvss126 import LATERAL_DISPLACEMENT_MIN as DISPLACEMENT_MIN
+    from .tuning import BOUNDS, DISPLACEMENT_MARGIN, SIGMA_MIN
     t_start = time.perf_counter()
     clock = {"last": t_start}
 
@@ -474,11 +501,29 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     rows_paper = sw.run_sweep(cfg, cases, [paper], executor=executor, scheduler=scheduler, workers=workers,
                               progress=progress)
     phase("sweep of the paper design")
-    tuned, rows_tuned, rounds = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
-                                             progress, log)
+    from . import limits as lm
+    a_cache: dict = {}
+    none_lim = lm.run_limits(cfg, None, a_cache=a_cache)
+    paper_lim = lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
+    # FMVSS 126's lateral displacement, where no control and the paper design meet it, is a constraint of
+    # the tuning itself (the criterion a stiff yaw-rate pole breaks first)
+    displacement = lm.displacement_runs(cfg, none_lim, a_cache, also=paper_lim)
+    phase(f"limit manoeuvres of no control and the paper design ({len(displacement)} FMVSS 126 runs held to "
+          f"the lateral displacement in the tuning)")
+    tuned, rows_tuned, rounds, ids = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
+                                                  progress, log, displacement=displacement)
     phase("tuning and sweep of the tuned design")
-    tuned, rows_tuned, limit_rows, selection = _limit_constrained(cfg, cases, rows_paper, tuned, rows_tuned, executor,
-                                                                  scheduler, workers, progress, log)
+
+    def retune(radius):
+        """The tuning again in the box of half-width ``radius`` around the paper design, on the tuning
+        set as the earlier rounds left it."""
+        nonlocal ids
+        point, rows, more, ids = _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers,
+                                              progress, log, ids=ids, bounds=radius, displacement=displacement)
+        rounds.extend(more)
+        return point, rows
+    tuned, rows_tuned, limit_rows, selection = _limit_constrained(cfg, cases, rows_paper, tuned, rows_tuned, retune,
+                                                                  (none_lim, paper_lim, a_cache), log)
     phase("limit manoeuvres and selection")
     rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
     summary = compare(rows)
@@ -489,16 +534,21 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     responses = response_rows(cfg, points)
     phase("analysis and responses")
     tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
-                        "AD through compiled rollouts of the loop; stability constraint: decay rate of the "
-                        "multi-rate loop with the estimator >= sigma_min on every tuning case",
+                        "AD (forward mode) through compiled rollouts of the loop; stability constraint: decay rate "
+                        "of the multi-rate loop with the estimator >= sigma_min on every tuning case; FMVSS 126 "
+                        f"lateral displacement >= {DISPLACEMENT_MIN} m + {DISPLACEMENT_MARGIN} m in every run "
+                        "at 5 A and above that no control and the paper design meet it in",
+              "fmvss126_displacement_runs": [r.label for r in displacement],
               "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
               "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds, "limit_selection": selection,
               "limit_constraint": "no worse than no control on every limit manoeuvre (FMVSS 126 criteria run by "
                                   "run; peak sideslip within max(1.5 x no control, 3 deg), under 10 deg where no "
                                   "control slides), as many limit runs held as the paper design, no sweep case "
                                   f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else the "
-                                  "accepted point nearest the candidate on the way back to the paper design "
-                                  "(bisection on the step in log space, to 1/8), else the paper design unchanged",
+                                  "tuning again with each parameter within a factor "
+                                  + ", ".join(f"{np.exp(r):.3g}" for r in TRUST_RADII)
+                                  + " of the paper design's, the first candidate accepted; else the paper design "
+                                  "unchanged",
               "cost": "mean over the standard manoeuvres of ms(r - r_ref)/(1 deg/s)^2 + ms(beta - beta_ref)/"
                       "(0.5 deg)^2 + ms(beta_hat - beta)/(0.5 deg)^2 + 0.1 ms(N_z)/N_z,max^2"}
     cmd = command or "evstab design --vehicle " + shlex.quote(vehicle) + (" --quick" if quick else "")

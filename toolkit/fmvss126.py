@@ -33,6 +33,8 @@ from .simulator import RolloverError, simulate, simulate_many
 from evstab.plants.errors import DataError
 
 SPEED = 80 / 3.6
+LATERAL_DISPLACEMENT_MIN = 1.83
+"""[m] at BOS + 1.07 s, for runs at 5 A and above (vehicles up to 3,500 kg)."""
 HANDWHEEL_RATE = np.deg2rad(13.5)
 
 
@@ -60,28 +62,59 @@ class SwdScore:
             failed.append("yaw_ratio_1_0")
         if self.yaw_ratio_1_75 > 20.0:
             failed.append("yaw_ratio_1_75")
-        if amplitude_deg >= 5.0 * a_deg - 1e-9 and self.lateral_displacement_m < 1.83:
+        if amplitude_deg >= 5.0 * a_deg - 1e-9 and self.lateral_displacement_m < LATERAL_DISPLACEMENT_MIN:
             failed.append("lateral_displacement")
         return not failed, failed
 
 
-def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np.ndarray) -> SwdScore:
-    """Score one sine-with-dwell run (hand-wheel angle [rad], yaw rate [rad/s], lateral acceleration [m/s^2])."""
-    t = np.asarray(t, float)
+def _timing(t: np.ndarray, handwheel: np.ndarray):
+    """What a sine-with-dwell run's scoring reads off the hand-wheel alone: the filtered hand-wheel less
+    its pre-steer mean, the pre-steer window (mask or None), the first sample at 5 deg, the direction of
+    the first steer and BOS."""
     fs = 1.0 / np.median(np.diff(t))
     hw = zero_phase(np.asarray(handwheel, float), 10.0, fs)
-    r = zero_phase(np.asarray(yaw_rate, float), 6.0, fs)
-    a = zero_phase(np.asarray(ay, float), 6.0, fs)
     above = np.nonzero(np.abs(hw) >= np.deg2rad(5.0))[0]
     if len(above) == 0:
         raise DataError("no steer of 5 deg or more: not a sine-with-dwell run")
     k0 = above[0]
     pre = (t >= t[k0] - 0.5 - 0.25) & (t < t[k0] - 0.25)
-    if pre.sum() > 10:
-        hw, r, a = hw - hw[pre].mean(), r - r[pre].mean(), a - a[pre].mean()
+    pre = pre if pre.sum() > 10 else None
+    if pre is not None:
+        hw = hw - hw[pre].mean()
     k0 = np.nonzero(np.abs(hw) >= np.deg2rad(5.0))[0][0]
     s = np.sign(hw[k0])
     bos = float(np.interp(np.deg2rad(5.0), [s * hw[k0 - 1], s * hw[k0]], [t[k0 - 1], t[k0]]))
+    return fs, hw, pre, k0, s, bos
+
+
+def displacement_map(t: np.ndarray, handwheel: np.ndarray):
+    """The lateral displacement at BOS + 1.07 s in the direction of the first steer [m] as
+    :func:`score_swd` computes it, as a function of the lateral acceleration [m/s^2] alone: the
+    timing comes from the hand-wheel, so the function is linear in the acceleration (the design
+    job's tuning applies it to the acceleration's derivatives too)."""
+    t = np.asarray(t, float)
+    fs, _, pre, _, s, bos = _timing(t, handwheel)
+    sel = t >= bos
+    ts = t[sel]
+
+    def displacement(ay: np.ndarray) -> float:
+        a = zero_phase(np.asarray(ay, float), 6.0, fs)
+        if pre is not None:
+            a = a - a[pre].mean()
+        a = a[sel]
+        vel = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]) * np.diff(ts))])
+        disp = np.concatenate([[0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(ts))])
+        return float(s * np.interp(bos + 1.07, ts, disp))
+    return displacement
+
+
+def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np.ndarray) -> SwdScore:
+    """Score one sine-with-dwell run (hand-wheel angle [rad], yaw rate [rad/s], lateral acceleration [m/s^2])."""
+    t = np.asarray(t, float)
+    fs, hw, pre, k0, s, bos = _timing(t, handwheel)
+    r = zero_phase(np.asarray(yaw_rate, float), 6.0, fs)
+    if pre is not None:
+        r = r - r[pre].mean()
     k_min = k0 + int(np.argmin(s * hw[k0:]))  # the dwell
     after = np.nonzero(s * hw[k_min:] >= 0.0)[0]
     if len(after):
@@ -96,10 +129,7 @@ def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np
     win = (t >= t[k_sign]) & (t <= cos + 1.75)
     peak = float(np.max(-s * r[win]))
     ratio = (lambda tt: float(100.0 * (-s) * np.interp(tt, t, r) / peak))
-    sel = t >= bos
-    vel = np.concatenate([[0.0], np.cumsum(0.5 * (a[sel][1:] + a[sel][:-1]) * np.diff(t[sel]))])
-    disp = np.concatenate([[0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(t[sel]))])
-    lat = float(s * np.interp(bos + 1.07, t[sel], disp))
+    lat = displacement_map(t, handwheel)(ay)
     return SwdScore(bos, cos, peak, ratio(cos + 1.0), ratio(cos + 1.75), lat)
 
 

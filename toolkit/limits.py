@@ -169,6 +169,50 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
             "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
 
 
+def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, also: list[dict] | None = None) -> list:
+    """The FMVSS 126 runs on ``cfg``'s plant whose lateral displacement criterion the uncontrolled
+    car meets (``none_rows``: :func:`run_limits` of no control; and ``also``, another design's rows
+    in the same order, meets too), as the tuning's constraints
+    (:class:`toolkit.tuning.DisplacementRun`): each run's inputs in the stability loop exactly as
+    :func:`toolkit.fmvss126.run_series` builds them for the paper design, and the linear map from the
+    lateral acceleration to the displacement at BOS + 1.07 s. Runs on another plant (the two-track
+    of a multi-body design's nominal file) are left to the check."""
+    from . import closed_loop as cl
+    from .fmvss126 import LATERAL_DISPLACEMENT_MIN, SPEED, displacement_map, find_a
+    from .simulator import _loop, _setup
+    from .tuning import DisplacementRun
+    from evstab.plants.maneuvers import sine_with_dwell
+    a_cache = {} if a_cache is None else a_cache
+    p = cfg.nominal
+    out = []
+    for n_row, row in enumerate(none_rows):
+        if row["kind"] != "fmvss126" or row["plant"] != cfg.plant:
+            continue
+        other = also[n_row]["_runs"] if also is not None else [(None, None, frozenset())] * len(row["_runs"])
+        key = (cfg.plant, row["mu"])
+        if key not in a_cache:
+            a_cache[key] = find_a(p, cfg.plant, row["mu"])
+        a_deg = a_cache[key]
+        dist = Disturbances(friction=Friction(mu=row["mu"]))
+        model, params, nominal, dist, sensors = _setup(cfg.plant, p, None, dist, None, cfg.dt)
+        spec, _, theta = _loop(model, params, nominal, sensors, cfg.dt, "two-dof", cfg.filter_design(cfg.paper),
+                               cfg.paper.controller(cfg.base_design()), None, False)
+        if cl.traced(spec) != cl.traced(cfg.spec()):
+            raise ValueError("the FMVSS 126 loop differs in structure from the tuning's")
+        for (amp, direction, failed), (_, _, failed_also) in zip(row["_runs"], other):
+            if amp < 5.0 * a_deg - 1e-9 or (failed | failed_also) & {"lateral_displacement", "rollover"}:
+                continue
+            sign = 1.0 if direction == "left" else -1.0
+            man = sine_with_dwell(SPEED, sign * np.deg2rad(amp) / p.steering_ratio)
+            U, z0, pv = cl.loop_inputs(spec, params, man, dist, sensors, 0)
+            t = np.arange(U.shape[0]) * cfg.dt
+            out.append(DisplacementRun(f"{row['case']}, {amp:.0f} deg {direction}", (U, z0, pv),
+                                       theta[-cl.CASE.size:].copy(),
+                                       displacement_map(t, man.steer(t) * p.steering_ratio),
+                                       LATERAL_DISPLACEMENT_MIN))
+    return out
+
+
 def public(rows: list[dict]) -> list[dict]:
     """The rows without the per-run detail (for CSV)."""
     return [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]

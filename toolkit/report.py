@@ -225,13 +225,15 @@ def build(data: dict) -> Doc:
     sel = doc["tuning"].get("limit_selection", [])
     if s.get("tuned_is_paper"):
         D.p("The tuned design is the paper design, unchanged: no candidate of the tuning met the limit constraint "
-            "and the margin (" + "; ".join(f"step {fmt(t['step'])}: {t['rejected_because']}" for t in sel) + ").")
+            "and the margin (" + "; ".join(f"box x{fmt(t['bounds_factor'])}: {t['rejected_because']}" for t in sel)
+            + ").")
     elif sel:
-        t = max((t for t in sel if t["accepted"]), key=lambda t: t["step"])
-        where = ("the tuning's candidate itself" if t["step"] == 1 else
-                 f"the tuning's candidate taken {fmt(t['step'])} of the way from the paper design (log space)")
+        t = next(t for t in sel if t["accepted"])
+        where = ("the tuning's candidate" if t is sel[0] else
+                 f"the candidate of the tuning run again with each parameter within a factor "
+                 f"{fmt(t['bounds_factor'])} of the paper design's")
         D.p(f"The tuned design is {where}. Limit constraint: " + doc["tuning"]["limit_constraint"] + ".")
-        D.table([{"step": t["step"], "K_beta [rad/s]": t["k_beta"], "K_gamma [rad/s]": t["k_gamma"],
+        D.table([{"box factor": t["bounds_factor"], "K_beta [rad/s]": t["k_beta"], "K_gamma [rad/s]": t["k_gamma"],
                   "worst cost": t["worst_cost"], "limit runs held": f"{t['limit_runs_passed']}/{t['limit_runs']}",
                   "accepted": t["accepted"], "why not": t["rejected_because"][:160] or "-"} for t in sel])
     for n in designs:
@@ -266,7 +268,8 @@ def build(data: dict) -> Doc:
     t = doc["tuning"]
     D.p(f"Tuning: {t['method']}. Decision variables: {t['decision_variables']}, each within a factor "
         f"{fmt(t['bounds_factor'])} of the paper design; sigma_min {fmt(t['sigma_min_1_s'])} 1/s. Cost: {t['cost']}.")
-    D.table([{"round": i + 1, "tuning cases": " ".join(str(c) for c in r["cases"]), "IPOPT iterations":
+    D.table([{"round": i + 1, "box factor": r.get("bounds_factor", t["bounds_factor"]),
+              "tuning cases": " ".join(str(c) for c in r["cases"]), "IPOPT iterations":
               r["iterations"], "status": r["status"], "worst of tuning cases, start": r["worst_start"],
               "worst of tuning cases, tuned": r["worst_tuned"], "worst of the sweep": r["sweep_worst_cost"],
               "stability lost (cases)": " ".join(str(c) for c in r["stability_lost_cases"]) or "-"}

@@ -8,8 +8,11 @@ epigraph form for IPOPT::
 
     min  t   over (phi, t)
     s.t. log J_i(phi) <= t                   every tuning case i (log: costs span 1e-2..1e5)
-         sigma_j(phi) >= SIGMA_MIN           stability with a margin, every tuning case j
-         phi within BOUNDS of the start
+         sigma_j(phi) >= min(SIGMA_MIN, sigma_j(start))   stability with a margin, every tuning case j
+                                             (no less than the start's where it has less)
+         log J_i(phi) <= log cap_i           no regression where the caller caps a case
+         D_k(phi) >= 1.83 m + margin         FMVSS 126 lateral displacement, every run k given
+         phi within the bounds around the start (BOUNDS unless told)
 
 ``J_i`` and its gradient come from casadi's algorithmic differentiation of the same
 ``loop_step`` the sweep compiles (plant, sensors, estimator, controller, actuators built
@@ -20,8 +23,13 @@ through a ``mapaccum`` rollout generated as C. Both are compiled once (cached).
 ``sigma_j`` is the decay rate of the sampled multi-rate loop with the estimator
 (``-ln(rho) * f_gps`` from the monodromy's spectral radius), evaluated by
 :func:`toolkit.stability.estimator_loop` with finite differences (a spectral radius
-has no closed-form derivative). Reproducible: the cases carry their seeds and
-IPOPT is deterministic.
+has no closed-form derivative). ``D_k`` is FMVSS 126's lateral displacement at BOS + 1.07 s
+of a sine-with-dwell run (:class:`DisplacementRun`): linear in the run's lateral acceleration,
+so the same forward-mode rollout that carries the acceleration's derivatives gives its
+gradient. Reproducible: the cases carry their seeds and IPOPT is deterministic; the lane
+kernel's arithmetic is IEEE without contraction and its own vector ``sin``/``atan``, so the
+same on every x86-64 machine. IPOPT's path does move with rounding (a gradient perturbed by
+1e-12 relative ends elsewhere on the flat ridge of equally good designs).
 
 The tuning cases are chosen by the caller (:func:`tune` takes them); the design job
 uses the paper design's worst cases of the sweep plus the nominal case, and re-adds
@@ -126,9 +134,11 @@ def _cost_of_sums(sums, n: int, nz_max: float):
 
 def _forward_step(spec, k: int) -> ca.Function:
     """The loop step carrying its tangents along ``k`` parameter directions and the cost's sums:
-    ``(z_aug, u, p, theta_aug) -> z_aug_next`` with ``z_aug = [z, vec(dz), s, vec(ds)]`` (``dz`` the
-    state's derivative (states x k), ``s`` the error signals' running sums of squares, ``ds`` theirs
-    (4 x k)) and ``theta_aug = [theta, vec(dtheta)]``: forward-mode differentiation of the same SX
+    ``(z_aug, u, p, theta_aug) -> (z_aug_next, [a_y, d a_y])`` with ``z_aug = [z, vec(dz), s, vec(ds)]``
+    (``dz`` the state's derivative (states x k), ``s`` the error signals' running sums of squares, ``ds``
+    theirs (4 x k)), ``theta_aug = [theta, vec(dtheta)]`` and, every sample, the truth's lateral
+    acceleration and its derivative (1 x k; FMVSS 126's lateral displacement is linear in it, see
+    :class:`DisplacementRun`): forward-mode differentiation of the same SX
     step the sweep runs (casadi ``jtimes``), rolled out as a lane kernel. The schedule's tables stay
     casadi's own selections here (a call node has no derivative in a lane kernel)."""
     step = closed_loop._build(spec, chunk=False)[0]
@@ -138,10 +148,12 @@ def _forward_step(spec, k: int) -> ca.Function:
     s, ds = ca.SX.sym("s", 4), ca.SX.sym("ds", 4, k)
     zn, y, e, _ = step(z, u, pv, th)
     err = ca.vertcat(*_cost_errors(y, e))
-    tangent = ca.jtimes(ca.vertcat(zn, err), ca.vertcat(z, th), ca.vertcat(dz, dth))
-    ds_n = ds + 2 * ca.repmat(err, 1, k) * tangent[nz:, :]
+    ay = y[TRUTH.index("ay")]
+    tangent = ca.jtimes(ca.vertcat(zn, err, ay), ca.vertcat(z, th), ca.vertcat(dz, dth))
+    ds_n = ds + 2 * ca.repmat(err, 1, k) * tangent[nz:nz + 4, :]
     return ca.Function("tune_forward", [ca.vertcat(z, ca.vec(dz), s, ca.vec(ds)), u, pv, ca.vertcat(th, ca.vec(dth))],
-                       [ca.vertcat(zn, ca.vec(tangent[:nz, :]), s + err ** 2, ca.vec(ds_n))])
+                       [ca.vertcat(zn, ca.vec(tangent[:nz, :]), s + err ** 2, ca.vec(ds_n)),
+                        ca.vertcat(ay, tangent[nz + 4, :].T)])
 
 
 FORWARD_CFLAGS = ("-O1",) + lanes_mod.CFLAGS[1:]
@@ -185,8 +197,8 @@ class RolloutCost:
         self.nz_max = cfg.base_design().nz_max
         k, spec = len(DesignPoint.TUNED), closed_loop.traced(self.prog.spec)  # one kernel for every calibration
         self.lanes = lanes_mod.compile_rollout(
-            lambda: _forward_step(spec, k), cache_key("tune_lanes", spec, k, closed_loop.SLOTS, lanes_mod.WIDTH,
-                                                      lanes_mod.machine_tag()),
+            lambda: _forward_step(spec, k), cache_key("tune_lanes", "a_y out", spec, k, closed_loop.SLOTS,
+                                                      lanes_mod.WIDTH, lanes_mod.machine_tag()),
             closed_loop.LANE_ROLES, flags=FORWARD_CFLAGS) if lanes else None
         self.cf = None
         if self.lanes is None:
@@ -218,10 +230,43 @@ class RolloutCost:
         z0[:, :nz] = [z for _, z, _ in runs]
         thetas = [self._theta(phi, rest) for rest in rests]
         th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
-        z_end, _ = self.lanes(z0, [np.stack([U for U, _, _ in runs]), np.array([p for _, _, p in runs]), th], self.n)
+        z_end, _ = self.lanes(z0, [np.stack([U for U, _, _ in runs]), np.array([p for _, _, p in runs]), th], self.n,
+                              keep=())
         sums = z_end[:, nz * (1 + k):]
         return [(float(_cost_of_sums(q[:4], self.n, self.nz_max)),
                  _cost_of_sums(q[4:].reshape((4, k), order="F"), self.n, self.nz_max)) for q in sums]
+
+    def lateral_acceleration(self, phi: np.ndarray, runs: list, rests: list) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per run (``(U, z0, pv)`` of any length, with its ``rests`` entry) the truth's lateral acceleration
+        (samples,) and its derivative by ``phi`` (samples x parameters): the forward-mode lane kernel,
+        the runs of one length in one call; without one, the same forward-mode step rolled out by
+        casadi's virtual machine (slow, but the same numbers to rounding)."""
+        k = len(phi)
+        out: list = [None] * len(runs)
+        by_len: dict[int, list[int]] = {}
+        for i, (U, _, _) in enumerate(runs):
+            by_len.setdefault(U.shape[0], []).append(i)
+        for n, idx in by_len.items():
+            nz = len(runs[idx[0]][1])
+            z0 = np.zeros((len(idx), nz * (1 + k) + 4 * (1 + k)))
+            z0[:, :nz] = [runs[i][1] for i in idx]
+            thetas = [self._theta(phi, rests[i]) for i in idx]
+            th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
+            U, pv = np.stack([runs[i][0] for i in idx]), np.array([runs[i][2] for i in idx])
+            if self.lanes is not None:
+                _, (A,) = self.lanes(z0, [U, pv, th], n)
+            else:
+                fwd = self._forward_vm(n)
+                A = np.stack([np.array(fwd(z0[q], U[q].T, pv[q], th[q])[1]).T for q in range(len(idx))])
+            for q, i in enumerate(idx):
+                out[i] = (A[q, :, 0].copy(), A[q, :, 1:].copy())
+        return out
+
+    def _forward_vm(self, n: int):
+        if getattr(self, "_vm", (None,))[0] != n:
+            spec = closed_loop.traced(self.prog.spec)
+            self._vm = (n, _forward_step(spec, len(DesignPoint.TUNED)).mapaccum("tune_forward_acc", n))
+        return self._vm[1]
 
     def __call__(self, phi: np.ndarray, run, rest: np.ndarray) -> tuple[float, np.ndarray]:
         U, z0, pv = run
@@ -257,6 +302,26 @@ def decay_rate(cfg: SweepConfig, case: Case, point: DesignPoint) -> float:
     return float(-np.log(rho) * case.gps_rate)
 
 
+DISPLACEMENT_MARGIN = 0.02
+"""[m] The tuning holds an FMVSS 126 run's lateral displacement this much above the criterion (IPOPT
+meets constraints to its tolerance; the check reads the criterion itself)."""
+
+
+@dataclass(frozen=True)
+class DisplacementRun:
+    """An FMVSS 126 run whose lateral displacement at BOS + 1.07 s the tuning keeps at or above
+    ``bound`` (+ :data:`DISPLACEMENT_MARGIN`): ``run`` is its ``(U, z0, pv)`` in the tuning's loop,
+    ``rest`` its case entries of theta, ``displacement`` the linear map from the truth's lateral
+    acceleration to the displacement (:func:`toolkit.fmvss126.displacement_map`; linear, so it maps
+    the acceleration's derivatives to the displacement's). Built by
+    :func:`toolkit.limits.displacement_runs`."""
+    label: str
+    run: tuple
+    rest: np.ndarray
+    displacement: object
+    bound: float
+
+
 @dataclass
 class TuningResult:
     point: DesignPoint
@@ -267,6 +332,8 @@ class TuningResult:
     costs_start: list[float]
     costs_tuned: list[float]
     sigma_tuned: list[float]
+    displacement_tuned: list[float]
+    """[m] per :class:`DisplacementRun` given, at the tuned point"""
     iterations: int
     status: str
     evaluations: int
@@ -287,14 +354,22 @@ def _eval_subset(phi: np.ndarray, idx: list[int]):
     return out
 
 
+def _displacement_subset(phi: np.ndarray, idx: list[int]):
+    rc, runs = _WORKER["rc"], _WORKER["displacement"]
+    acc = rc.lateral_acceleration(phi, [runs[i].run for i in idx], [runs[i].rest for i in idx])
+    return [(i, runs[i].displacement(a), np.array([runs[i].displacement(da[:, j]) for j in range(da.shape[1])]))
+            for i, (a, da) in zip(idx, acc)]
+
+
 def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[float]:
     p = point_of(phi)
     return [decay_rate(cfg, c, p) for c in cases]
 
 
 def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, *, max_iter: int = 30,
-         stability_cases: list[Case] | None = None, caps: list[float] | None = None,
-         verbose: bool = False, workers: int | None = None, progress: bool = False) -> TuningResult:
+         stability_cases: list[Case] | None = None, caps: list[float] | None = None, bounds: float = BOUNDS,
+         displacement: list[DisplacementRun] | None = None, verbose: bool = False,
+         workers: int | None = None, progress: bool = False) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
 
     ``progress``: a progress bar on stderr, one step per cost-and-gradient evaluation (IPOPT
@@ -307,8 +382,17 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     cannot buy a loss of stability elsewhere: a worst-case objective alone is blind to
     every case below the worst.
 
+    ``bounds``: each parameter stays within a factor ``e^bounds`` of ``start`` (log space, default
+    :data:`BOUNDS`).
+
+    ``displacement``: FMVSS 126 runs (:class:`DisplacementRun`) whose lateral displacement stays at or
+    above their bound plus :data:`DISPLACEMENT_MARGIN` (constraints, with their gradients by the
+    same forward-mode rollouts); the tuned point meets every bound itself.
+
     ``start`` defaults to :attr:`SweepConfig.paper`.
     """
+    if not (np.isfinite(bounds) and bounds > 0):
+        raise SettingsError(f"tuning bounds must be a finite number > 0 (log space), got {bounds!r}")
     start = cfg.paper if start is None else start
     rc = RolloutCost(cfg)
     data = []
@@ -320,7 +404,8 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     cache: dict = {}
     counter = {"n": 0}
     history: list = []
-    _WORKER.update(rc=rc, data=data)
+    disp = list(displacement or [])
+    _WORKER.update(rc=rc, data=data, displacement=disp)
     workers = workers or os.cpu_count() or 1
     pool = None
     if workers > 1 and "fork" in mp.get_all_start_methods():
@@ -329,6 +414,8 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"),
                                    initializer=sweep.single_threaded_blas)
     parts = [list(range(k, m, workers)) for k in range(workers)] if pool else [list(range(m))]
+    n_d = len(disp)
+    d_parts = [list(range(k, n_d, workers)) for k in range(workers)] if pool else [list(range(n_d))]
 
     from tqdm import tqdm
     bar = tqdm(total=max_iter + 1, desc="tuning", unit="eval", disable=not progress, leave=False)
@@ -337,18 +424,26 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
         key = tuple(np.round(phi, 15))
         if key not in cache:
             J, dJ = np.empty(m), np.empty((m, len(phi)))
+            D, dD = np.empty(n_d), np.empty((n_d, len(phi)))
             if pool is not None:
-                results = [r for f in [pool.submit(_eval_subset, phi, idx) for idx in parts if idx]
-                           for r in f.result()]
+                futures = [pool.submit(_eval_subset, phi, idx) for idx in parts if idx]
+                d_futures = [pool.submit(_displacement_subset, phi, idx) for idx in d_parts if idx]
+                results = [r for f in futures for r in f.result()]
+                d_results = [r for f in d_futures for r in f.result()]
             else:
                 results = _eval_subset(phi, list(range(m)))
+                d_results = _displacement_subset(phi, list(range(n_d))) if n_d else []
             for i, c, gr in results:
                 J[i], dJ[i] = c, gr
+            for i, c, gr in d_results:
+                D[i], dD[i] = c, gr
             J = np.where(np.isfinite(J), J, 1e12)
             dJ = np.where(np.isfinite(dJ), dJ, 0.0)
+            D = np.where(np.isfinite(D), D, -1e3)  # a run that diverged has no displacement to speak of
+            dD = np.where(np.isfinite(dD), dD, 0.0)
             cache.clear()
-            cache[key] = (J, dJ)
-            history.append((np.array(phi), J.copy()))
+            cache[key] = (J, dJ, D, dD)
+            history.append((np.array(phi), J.copy(), D.copy()))
             counter["n"] += 1
             bar.set_postfix_str(f"worst cost {float(np.max(J)):.4g}", refresh=False)
             bar.update(1)
@@ -377,7 +472,8 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     # log J: the costs span 0.05 (a held nominal case) to 4e4 (a spin); on the log scale the
     # epigraph's rows and the caps are comparable for IPOPT (the max is unchanged: log is monotone)
     costs = _Function("costs", n_phi, m, lambda phi: np.log(evaluate(phi)[0]),
-                      lambda phi: (lambda J, dJ: dJ / J[:, None])(*evaluate(phi)))
+                      lambda phi: (lambda J, dJ, *_: dJ / J[:, None])(*evaluate(phi)))
+    bound = np.array([r.bound for r in disp])
     sigmas = _Function("sigmas", n_phi, len(stab), sigma_values, sigma_jacobian)
     phi0 = phi_of(start)
     x = ca.MX.sym("x", len(phi0) + 1)
@@ -385,17 +481,30 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     caps_arr = np.full(m, np.inf) if caps is None else np.asarray(caps, float)
     Jv = costs(phi)
     g = ca.vertcat(Jv - t, sigmas(phi), Jv)
+    if n_d:  # (the callback objects must outlive the solver: named)
+        displacements = _Function("displacements", n_phi, n_d, lambda phi: evaluate(phi)[2],
+                                  lambda phi: evaluate(phi)[3])
+        g = ca.vertcat(g, displacements(phi))
     solver = ca.nlpsol("tune", "ipopt", {"x": x, "f": t, "g": g},
                        {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter,
                         "ipopt.print_level": 5 if verbose else 0, "ipopt.sb": "no" if verbose else "yes",
                         "print_time": False,
                         "ipopt.tol": 1e-4, "ipopt.acceptable_tol": 1e-3, "ipopt.mu_strategy": "adaptive"})
-    J0, _ = evaluate(phi0)
+    J0, _, D0, _ = evaluate(phi0)
+    # the stability margin where the start has it; elsewhere no less than the start's decay rate (its
+    # slow modes, the heading and the gyro bias, hardly move with these parameters: a margin the start
+    # misses would make the problem infeasible from its first point)
+    sigma_floor = np.minimum(SIGMA_MIN, sigma_values(phi0))
+
+    def feasible(J, D, ph):
+        return bool(np.all(J <= caps_arr * (1 + 1e-9)) and np.all(D >= bound)
+                    and np.all(sigma_values(ph) >= sigma_floor))
     x0 = np.concatenate([phi0, [float(np.log(np.max(J0))) + 1e-3]])
-    lbx = np.concatenate([phi0 - BOUNDS, [-np.inf]])
-    ubx = np.concatenate([phi0 + BOUNDS, [np.inf]])
-    lbg = np.concatenate([np.full(m, -np.inf), np.full(len(stab), SIGMA_MIN), np.full(m, -np.inf)])
-    ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), np.log(caps_arr)])
+    lbx = np.concatenate([phi0 - bounds, [-np.inf]])
+    ubx = np.concatenate([phi0 + bounds, [np.inf]])
+    lbg = np.concatenate([np.full(m, -np.inf), sigma_floor, np.full(m, -np.inf),
+                          bound + DISPLACEMENT_MARGIN])
+    ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), np.log(caps_arr), np.full(n_d, np.inf)])
     try:
         sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         stats = solver.stats()
@@ -408,16 +517,17 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     evaluate(phi_opt)
     _WORKER.clear()
     # IPOPT's iterates need not be feasible nor monotone, and it may stop on its iteration
-    # limit: the result is the best point it evaluated that meets every cap and the stability
-    # margin (the start does, for caps built from it), never worse than the start
-    tuned, J1 = point_of(phi0), J0
-    for ph, J in sorted(history, key=lambda h: float(np.max(h[1]))):
+    # limit: the result is the best point it evaluated that meets every cap, the stability
+    # margin and every displacement bound (the start meets the caps built from it), never worse
+    # than the start, which it is when no point is better
+    tuned, J1, D1 = start, J0, D0
+    for ph, J, D in sorted(history, key=lambda h: float(np.max(h[1]))):
         if np.max(J) >= np.max(J0):
             break
-        if np.all(J <= caps_arr * (1 + 1e-9)) and np.all(sigma_values(ph) >= SIGMA_MIN):
-            tuned, J1 = point_of(ph), J
+        if feasible(J, D, ph):
+            tuned, J1, D1 = point_of(ph), J, D
             break
     sig = [decay_rate(cfg, c, tuned) for c in stab]
     return TuningResult(tuned, start, [c.case_id for c in cases], float(np.max(J0)), float(np.max(J1)),
-                        [float(v) for v in J0], [float(v) for v in J1], sig, int(stats.get("iter_count", -1)),
-                        str(stats.get("return_status", "?")), counter["n"])
+                        [float(v) for v in J0], [float(v) for v in J1], sig, [float(v) for v in D1],
+                        int(stats.get("iter_count", -1)), str(stats.get("return_status", "?")), counter["n"])

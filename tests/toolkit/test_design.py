@@ -136,6 +136,14 @@ def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
     assert rows == local  # exact: same seeds, same compiled code, order restored
 
 
+def test_tuning_refuses_bounds_that_are_not_a_positive_number():
+    from evstab.plants.errors import SettingsError
+    from evstab.toolkit.tuning import tune
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(SettingsError, match="tuning bounds must be a finite number > 0"):
+            tune(CFG, [CASE_A], bounds=bad)
+
+
 def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
     from evstab.plants.sensors import SensorConfig, gps_fix_mask
     from evstab.toolkit.closed_loop import latch_schedule
@@ -181,6 +189,11 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
     else:  # better by the stated margin
         assert tuned_worst < (1.0 - doc["sweep"]["better_margin"]) * paper_worst
     assert all(by[(c.case_id, "tuned")]["stable"] for c in cases if by[(c.case_id, "paper")]["stable"])
+    # the FMVSS 126 runs the tuning held to the lateral displacement: every run at 5 A and above on
+    # both surfaces where no control and the paper design meet it (on compact-ev all 30 per surface)
+    held = doc["tuning"]["fmvss126_displacement_runs"]
+    assert {h.split(",")[0] for h in held} == {"fmvss126 80 km/h mu 1", "fmvss126 80 km/h mu 0.6"}
+    assert len(held) == len(set(held)) >= 40
     import pyarrow.parquet as pq
     assert pq.read_table(design_dir / "sweep.parquet").num_rows == len(rows)
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from evstab.plants.maneuvers import sine_with_dwell
-from evstab.toolkit.fmvss126 import amplitudes, score_swd
+from evstab.toolkit.fmvss126 import amplitudes, displacement_map, score_swd
 
 
 def synthetic(a_sw_deg=100.0, r_peak=0.5, sigma=0.5, t_peak_after_cos=0.3, jerk=5.0):
@@ -64,6 +64,22 @@ def test_pass_and_fail_decisions():
     slow = score_swd(*synthetic(t_peak_after_cos=1.5, sigma=1.0)[:4])
     ok, failed = slow.passes(100.0, 20.0)
     assert not ok and "yaw_ratio_1_0" in failed  # yaw rate still near its peak 1 s after COS
+
+
+def test_displacement_is_linear_in_the_lateral_acceleration_and_the_scorers():
+    # the tuning's constraint applies the map to the acceleration's derivatives: it must be the
+    # scorer's displacement and linear (the timing comes from the hand-wheel alone); linear up to
+    # rounding, which the regulation's 6 Hz 12-pole filter in transfer-function form (scipy's b, a
+    # at 0.012 of Nyquist, badly conditioned) amplifies: 1.4e-7 m apart here (measured) -> 1e-6 m
+    t, hw, r, ay, *_ = synthetic()
+    L = displacement_map(t, hw)
+    assert L(ay) == score_swd(t, hw, r, ay).lateral_displacement_m
+    rng = np.random.default_rng(3)
+    b = rng.standard_normal(len(t))
+    assert L(2.5 * ay - 0.7 * b) == pytest.approx(2.5 * L(ay) - 0.7 * L(b), abs=1e-6)
+    assert L(np.zeros(len(t))) == 0.0
+    # y = jerk * 1.07^3 / 6 for a ramp from BOS (as above)
+    assert L(ay) == pytest.approx(5.0 * 1.07**3 / 6, abs=5e-3)
 
 
 def test_right_first_is_mirrored():
