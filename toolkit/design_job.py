@@ -270,6 +270,8 @@ def compare(rows: list[dict]) -> dict:
 
 
 # ------------------------------------------------------------------ the job
+TUNING_STARTS = 3
+"""IPOPT runs per tuning (:func:`toolkit.tuning.tune`'s ``starts``)."""
 TRUST_RADII = (1.0, 0.5, 0.25)
 """Half-widths (log space) of the boxes around the paper design that the tuning runs in again, one
 after the other, when its candidate fails the limit check: each parameter within a factor e^1
@@ -316,7 +318,7 @@ def _tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pr
         caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
                 for i in ids]
         res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps, bounds=bounds,
-                   displacement=displacement,
+                   displacement=displacement, starts=TUNING_STARTS,
                    workers=workers if executor == "local" else None, progress=progress)
         cand = dataclasses.replace(res.point, name="tuned")
         rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,

@@ -302,6 +302,8 @@ def decay_rate(cfg: SweepConfig, case: Case, point: DesignPoint) -> float:
     return float(-np.log(rho) * case.gps_rate)
 
 
+STARTS_SEED = 0
+"""Seed of the tuning's further starting points (:func:`tune`)."""
 DISPLACEMENT_MARGIN = 0.02
 """[m] The tuning holds an FMVSS 126 run's lateral displacement this much above the criterion (IPOPT
 meets constraints to its tolerance; the check reads the criterion itself)."""
@@ -368,7 +370,7 @@ def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[
 
 def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, *, max_iter: int = 30,
          stability_cases: list[Case] | None = None, caps: list[float] | None = None, bounds: float = BOUNDS,
-         displacement: list[DisplacementRun] | None = None, verbose: bool = False,
+         displacement: list[DisplacementRun] | None = None, starts: int = 1, verbose: bool = False,
          workers: int | None = None, progress: bool = False) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
 
@@ -385,12 +387,19 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     ``bounds``: each parameter stays within a factor ``e^bounds`` of ``start`` (log space, default
     :data:`BOUNDS`).
 
+    ``starts``: IPOPT runs, the first from ``start``, the others from fixed points drawn (seeded,
+    :data:`STARTS_SEED`) uniformly within half the bounds around it; the result is the best point of
+    them all. The worst case has local optima (spins) far apart in quality, and which one a run
+    ends in moves with rounding: several starts make the result's quality depend less on one path.
+
     ``displacement``: FMVSS 126 runs (:class:`DisplacementRun`) whose lateral displacement stays at or
     above their bound plus :data:`DISPLACEMENT_MARGIN` (constraints, with their gradients by the
     same forward-mode rollouts); the tuned point meets every bound itself.
 
     ``start`` defaults to :attr:`SweepConfig.paper`.
     """
+    if not (isinstance(starts, int) and starts >= 1):
+        raise SettingsError(f"tuning starts must be a whole number >= 1, got {starts!r}")
     if not (np.isfinite(bounds) and bounds > 0):
         raise SettingsError(f"tuning bounds must be a finite number > 0 (log space), got {bounds!r}")
     start = cfg.paper if start is None else start
@@ -505,19 +514,25 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     lbg = np.concatenate([np.full(m, -np.inf), sigma_floor, np.full(m, -np.inf),
                           bound + DISPLACEMENT_MARGIN])
     ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), np.log(caps_arr), np.full(n_d, np.inf)])
+    # the other starts: fixed points of the box (seeded), the same for every run of the same problem
+    rng = np.random.default_rng(STARTS_SEED)
+    others = [phi0 + rng.uniform(-0.5 * bounds, 0.5 * bounds, n_phi) for _ in range(starts - 1)]
+    iterations, status = 0, []
     try:
-        sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        stats = solver.stats()
+        for x_start in [x0] + [np.concatenate([q, [float(np.log(np.max(evaluate(q)[0]))) + 1e-3]]) for q in others]:
+            sol = solver(x0=x_start, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            stats = solver.stats()
+            iterations += int(stats.get("iter_count", -1))
+            status.append(str(stats.get("return_status", "?")))
+            evaluate(np.array(sol["x"]).ravel()[:-1])
     finally:
         if pool is not None:
             pool.shutdown()
         pool = None
         bar.close()
-    phi_opt = np.array(sol["x"]).ravel()[:-1]
-    evaluate(phi_opt)
     _WORKER.clear()
     # IPOPT's iterates need not be feasible nor monotone, and it may stop on its iteration
-    # limit: the result is the best point it evaluated that meets every cap, the stability
+    # limit: the result is the best point the runs evaluated that meets every cap, the stability
     # margin and every displacement bound (the start meets the caps built from it), never worse
     # than the start, which it is when no point is better
     tuned, J1, D1 = start, J0, D0
@@ -530,4 +545,4 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     sig = [decay_rate(cfg, c, tuned) for c in stab]
     return TuningResult(tuned, start, [c.case_id for c in cases], float(np.max(J0)), float(np.max(J1)),
                         [float(v) for v in J0], [float(v) for v in J1], sig, [float(v) for v in D1],
-                        int(stats.get("iter_count", -1)), str(stats.get("return_status", "?")), counter["n"])
+                        iterations, "; ".join(status), counter["n"])

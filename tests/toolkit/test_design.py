@@ -136,12 +136,15 @@ def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
     assert rows == local  # exact: same seeds, same compiled code, order restored
 
 
-def test_tuning_refuses_bounds_that_are_not_a_positive_number():
+def test_tuning_refuses_bounds_and_starts_it_cannot_use():
     from evstab.plants.errors import SettingsError
     from evstab.toolkit.tuning import tune
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(SettingsError, match="tuning bounds must be a finite number > 0"):
             tune(CFG, [CASE_A], bounds=bad)
+    for bad in (0, -2, 1.5):
+        with pytest.raises(SettingsError, match="tuning starts must be a whole number >= 1"):
+            tune(CFG, [CASE_A], starts=bad)
 
 
 def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
