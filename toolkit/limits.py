@@ -76,7 +76,8 @@ def _fmvss(p, plant, mu, controller, estimator, design, a_cache: dict) -> dict:
     _, rows, verdict = run_series(p, controller, estimator, mu=mu, plant=plant, a_deg=a_cache[key], design=design)
     return {"A_deg": a_cache[key], "runs": len(rows), "runs_passed": sum(r["pass"] for r in rows),
             "pass": verdict["pass"], "failed_criteria": " ".join(verdict["failed_criteria"]) or "-",
-            "_runs": [(r["amplitude_deg"], r["direction"], frozenset(r["failed"].split())) for r in rows]}
+            "_runs": [(r["amplitude_deg"], r["direction"], frozenset(r["failed"].split())) for r in rows],
+            "_displacement": [r["lateral_displacement_m"] for r in rows]}
 
 
 def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> dict:
@@ -169,6 +170,48 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
             "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
 
 
+DISPLACEMENT_TAIL = 1.0
+"""[s] A displacement run of the tuning is rolled out this long past BOS + 1.07 s (not to the series'
+end: half the work), enough for the scorer's 6 Hz zero-phase filter to have let go of what follows."""
+
+
+DISPLACEMENT_HELD = 4
+"""Runs per FMVSS 126 series and steer direction the design job's tuning holds to the lateral
+displacement from the start: those with the least margin under the paper design
+(:func:`tightest`); a run the candidate then misses joins them (a cutting-plane round)."""
+
+
+def run_label(row: dict, amp: float, direction: str) -> str:
+    """The name of one run of an FMVSS 126 limit row (the tuning's :class:`toolkit.tuning.DisplacementRun`)."""
+    return f"{row['case']}, {amp:.0f} deg {direction}"
+
+
+def tightest(runs: list, rows: list[dict], k: int = DISPLACEMENT_HELD) -> list:
+    """Of ``runs`` (:func:`displacement_runs`), per series and steer direction the ``k`` whose lateral
+    displacement in ``rows`` (a design's :func:`run_limits`, e.g. the paper design's) is the smallest."""
+    value = {run_label(r, amp, d): x for r in rows if r["kind"] == "fmvss126"
+             for (amp, d, _), x in zip(r["_runs"], r["_displacement"])}
+    groups: dict = {}
+    for run in runs:
+        series, rest = run.label.rsplit(", ", 1)
+        groups.setdefault((series, rest.split()[-1]), []).append(run)
+    keep = {id(r) for g in groups.values() for r in sorted(g, key=lambda r: value[r.label])[:k]}
+    return [r for r in runs if id(r) in keep]
+
+
+def missed_displacement(rows: list[dict], none_rows: list[dict]) -> list[str]:
+    """Labels of the FMVSS 126 runs where a design (``rows``) fails the lateral displacement and no
+    control (``none_rows``, same order) meets it."""
+    out = []
+    for r, n in zip(rows, none_rows):
+        if r["kind"] != "fmvss126":
+            continue
+        for (amp, d, f), (_, _, g) in zip(r["_runs"], n["_runs"]):
+            if "lateral_displacement" in f and "lateral_displacement" not in g:
+                out.append(run_label(r, amp, d))
+    return out
+
+
 def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, also: list[dict] | None = None) -> list:
     """The FMVSS 126 runs on ``cfg``'s plant whose lateral displacement criterion the uncontrolled
     car meets (``none_rows``: :func:`run_limits` of no control; and ``also``, another design's rows
@@ -178,9 +221,10 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
     lateral acceleration to the displacement at BOS + 1.07 s. Runs on another plant (the two-track
     of a multi-body design's nominal file) are left to the check."""
     from . import closed_loop as cl
-    from .fmvss126 import LATERAL_DISPLACEMENT_MIN, SPEED, displacement_map, find_a
+    from .fmvss126 import LATERAL_DISPLACEMENT_MIN, SPEED, _timing, displacement_map, find_a
     from .simulator import _loop, _setup
     from .tuning import DisplacementRun
+    from evstab.plants.errors import DesignError
     from evstab.plants.maneuvers import sine_with_dwell
     a_cache = {} if a_cache is None else a_cache
     p = cfg.nominal
@@ -198,7 +242,8 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
         spec, _, theta = _loop(model, params, nominal, sensors, cfg.dt, "two-dof", cfg.filter_design(cfg.paper),
                                cfg.paper.controller(cfg.base_design()), None, False)
         if cl.traced(spec) != cl.traced(cfg.spec()):
-            raise ValueError("the FMVSS 126 loop differs in structure from the tuning's")
+            raise DesignError(f"{row['case']}: the FMVSS 126 loop differs in structure from the tuning's (plant "
+                              f"{cfg.plant}); its lateral displacement cannot be a constraint of the tuning")
         for (amp, direction, failed), (_, _, failed_also) in zip(row["_runs"], other):
             if amp < 5.0 * a_deg - 1e-9 or (failed | failed_also) & {"lateral_displacement", "rollover"}:
                 continue
@@ -206,9 +251,12 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
             man = sine_with_dwell(SPEED, sign * np.deg2rad(amp) / p.steering_ratio)
             U, z0, pv = cl.loop_inputs(spec, params, man, dist, sensors, 0)
             t = np.arange(U.shape[0]) * cfg.dt
-            out.append(DisplacementRun(f"{row['case']}, {amp:.0f} deg {direction}", (U, z0, pv),
-                                       theta[-cl.CASE.size:].copy(),
-                                       displacement_map(t, man.steer(t) * p.steering_ratio),
+            hw = man.steer(t) * p.steering_ratio
+            # the rollout up to DISPLACEMENT_TAIL after the displacement's instant: what comes later
+            # reaches it only through the zero-phase filter's backward pass, which has decayed by then
+            n = min(U.shape[0], int(np.ceil((_timing(t, hw)[-1] + 1.07 + DISPLACEMENT_TAIL) / cfg.dt)))
+            out.append(DisplacementRun(run_label(row, amp, direction), (U[:n].copy(), z0, pv),
+                                       theta[-cl.CASE.size:].copy(), displacement_map(t[:n], hw[:n]),
                                        LATERAL_DISPLACEMENT_MIN))
     return out
 

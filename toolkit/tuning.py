@@ -295,8 +295,12 @@ def point_of(phi: np.ndarray, name: str = "tuned") -> DesignPoint:
 
 
 def decay_rate(cfg: SweepConfig, case: Case, point: DesignPoint) -> float:
-    """``-ln(rho) f_gps`` [1/s] of the multi-rate loop with the estimator (negative: unstable)."""
-    _, rho = sweep.linear_verdict(cfg, case, point)
+    """``-ln(rho) f_gps`` [1/s] of the multi-rate loop with the estimator (negative: unstable; -1 where
+    the estimator's periodic gains have no stabilising Riccati solution to compute them from)."""
+    try:
+        _, rho = sweep.linear_verdict(cfg, case, point)
+    except (ValueError, np.linalg.LinAlgError):  # scipy's DARE: the pencil too ill-conditioned to reorder
+        return -1.0
     if not np.isfinite(rho):
         return -1.0
     return float(-np.log(rho) * case.gps_rate)

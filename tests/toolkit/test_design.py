@@ -192,11 +192,13 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
     else:  # better by the stated margin
         assert tuned_worst < (1.0 - doc["sweep"]["better_margin"]) * paper_worst
     assert all(by[(c.case_id, "tuned")]["stable"] for c in cases if by[(c.case_id, "paper")]["stable"])
-    # the FMVSS 126 runs the tuning held to the lateral displacement: every run at 5 A and above on
-    # both surfaces where no control and the paper design meet it (on compact-ev all 30 per surface)
+    # the FMVSS 126 runs the tuning held to the lateral displacement: at least the 4 with the least
+    # margin per surface and steer direction, named once each
     held = doc["tuning"]["fmvss126_displacement_runs"]
-    assert {h.split(",")[0] for h in held} == {"fmvss126 80 km/h mu 1", "fmvss126 80 km/h mu 0.6"}
-    assert len(held) == len(set(held)) >= 40
+    for mu in ("1", "0.6"):
+        for side in ("left", "right"):
+            assert sum(h.startswith(f"fmvss126 80 km/h mu {mu},") and h.endswith(side) for h in held) >= 4
+    assert len(held) == len(set(held))
     import pyarrow.parquet as pq
     assert pq.read_table(design_dir / "sweep.parquet").num_rows == len(rows)
 
