@@ -359,17 +359,20 @@ def _limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_s
     worse than no control on every limit case (where the paper design is), passes FMVSS 126 and
     as many limit runs as the paper design, loses no case of the sweep the paper design holds, and
     beats the paper design's worst case by :data:`BETTER_MARGIN`. Otherwise the tuning runs again
-    in smaller boxes around the paper design (:data:`TRUST_RADII`, ``retune(radius)`` returning a
-    candidate and its sweep rows) and each candidate is checked the same way; the first accepted
-    is the tuned design. An optimum in a smaller box, not a point on the way back to one
-    candidate: what is accepted does not hang on where one IPOPT path ended. None accepted: the
-    paper design, unchanged (and the summary says so).
+    (``retune(radius, missed)`` returns a candidate and its sweep rows, or None when ``missed``
+    names no run it could hold that it does not hold already), and each candidate is checked the
+    same way; the first accepted is the tuned design:
+
+    * a candidate that misses FMVSS 126's lateral displacement in runs the tuning did not hold is
+      tuned again in the same box with those runs held (a cutting plane), up to
+      :data:`CUT_ROUNDS` times per box;
+    * then in smaller boxes around the paper design (:data:`TRUST_RADII`): an optimum in a smaller
+      box, not a point on the way back to one candidate, which would hang on where one IPOPT
+      path ended.
+
+    None accepted: the paper design, unchanged (and the summary says so).
 
     ``limits_start``: ``(limit rows of no control, of the paper design, the FMVSS 126 A cache)``.
-
-    A candidate that misses FMVSS 126's lateral displacement in runs the tuning did not hold is
-    first tuned again in the same box with those runs held (``retune(radius, missed)``, a cutting
-    plane; None when there is nothing new to hold), up to :data:`CUT_ROUNDS` times per box.
 
     Returns ``(point, sweep rows, limit rows of no control / paper / tuned, selection log)``."""
     from . import limits as lm
@@ -564,9 +567,12 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     phase("analysis and responses")
     tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
                         "AD (forward mode) through compiled rollouts of the loop; stability constraint: decay rate "
-                        "of the multi-rate loop with the estimator >= sigma_min on every tuning case; FMVSS 126 "
-                        f"lateral displacement >= {DISPLACEMENT_MIN} m + {DISPLACEMENT_MARGIN} m in every run "
-                        "at 5 A and above that no control and the paper design meet it in",
+                        "of the multi-rate loop with the estimator >= min(sigma_min, the paper design's) on every "
+                        f"tuning case; FMVSS 126 lateral displacement >= {DISPLACEMENT_MIN} m + "
+                        f"{DISPLACEMENT_MARGIN} m in the held runs (of those at 5 A and above that no control and "
+                        f"the paper design meet it in, the {lm.DISPLACEMENT_HELD} per surface and steer direction "
+                        "with the least margin under the paper design, and any a candidate missed); "
+                        f"{TUNING_STARTS} IPOPT starts, the best feasible point of all",
               "fmvss126_displacement_runs": [r.label for r in displacement],
               "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
               "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds, "limit_selection": selection,
@@ -574,7 +580,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
                                   "run; peak sideslip within max(1.5 x no control, 3 deg), under 10 deg where no "
                                   "control slides), as many limit runs held as the paper design, no sweep case "
                                   f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else the "
-                                  "tuning again with each parameter within a factor "
+                                  "tuning again with the FMVSS 126 runs the candidate missed held (the same box, "
+                                  f"up to {CUT_ROUNDS} times), then with each parameter within a factor "
                                   + ", ".join(f"{np.exp(r):.3g}" for r in TRUST_RADII)
                                   + " of the paper design's, the first candidate accepted; else the paper design "
                                   "unchanged",
