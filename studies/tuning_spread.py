@@ -19,7 +19,7 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit import limits as lm, sweep as sw
-from evstab.toolkit.design_job import TUNING_STARTS, _tuning_ids
+from evstab.toolkit.selection import TUNING_STARTS, tuning_ids
 from evstab.toolkit.tuning import REGRESS_FACTOR, REGRESS_OFFSET, RolloutCost, tune
 
 PERTURBATION = 1e-12
@@ -53,7 +53,7 @@ def main(out, quick: bool = False) -> list[dict]:
     a_cache: dict = {}
     none, paper = lm.run_limits(cfg, None, a_cache=a_cache), lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
     displacement = lm.tightest(lm.displacement_runs(cfg, none, a_cache, also=paper), paper)
-    ids = _tuning_ids(cases, rows_paper, quick)
+    ids = tuning_ids(cases, rows_paper, quick)
     by = {r["case_id"]: r for r in rows_paper}
     caps = [REGRESS_FACTOR * by[i]["cost"] + REGRESS_OFFSET if by[i]["stable"] else float("inf") for i in ids]
     rows = []

@@ -18,7 +18,7 @@ a run, the design meets in that run; in the sideslip cases the peak stays within
 ``max(1.5 x the uncontrolled peak, 3 deg)`` where the uncontrolled car keeps its sideslip
 under :data:`SPIN_DEG`, and under ``SPIN_DEG`` where it does not. That is a constraint: a design that
 breaks it is not chosen, however small its cost (the design job's selection:
-:func:`toolkit.design_job._limit_constrained`).
+:func:`toolkit.selection.limit_constrained`).
 """
 
 from __future__ import annotations
