@@ -1,15 +1,15 @@
 """How far the design job's tuning moves with rounding.
 
 The design job's tuning (:func:`toolkit.tuning.tune`) on compact-ev with the job's own tuning set,
-caps, starting FMVSS 126 displacement runs and starts (the full run's, or with ``--quick`` the quick run's), once as
-built and again with its cost gradient multiplied by ``1 + 1e-12 N(0, 1)`` (seeded): a different
+caps, starting FMVSS 126 displacement runs and starts (the full run's, or with ``--quick`` the
+quick run's), once as built and again with its cost gradient multiplied by ``1 + 1e-12 N(0, 1)`` (seeded): a different
 compiler, library or machine rounds differently, and IPOPT's path on these costs (spins in the
 worst cases) moves with it. Per run: the tuned parameters, the tuning cases' worst cost (the
 paper design's beside it) and the smallest FMVSS 126 lateral displacement of the held runs.
 Writes ``tuning_spread.csv`` / ``.md``.
 
 Run: ``python -m evstab.studies.tuning_spread OUT_DIR [--quick]`` (about 20 minutes on 2 cores,
-4 with ``--quick``).
+2 with ``--quick``).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit import limits as lm, sweep as sw
-from evstab.toolkit.selection import TUNING_STARTS, tuning_ids
-from evstab.toolkit.tuning import REGRESS_FACTOR, REGRESS_OFFSET, RolloutCost, tune
+from evstab.toolkit.selection import TUNING_STARTS, regression_caps, tuning_ids
+from evstab.toolkit.tuning import RolloutCost, tune
 
 PERTURBATION = 1e-12
 """Relative size of the gradient's perturbation: the order of the rounding two builds of the same
@@ -54,8 +54,7 @@ def main(out, quick: bool = False) -> list[dict]:
     none, paper = lm.run_limits(cfg, None, a_cache=a_cache), lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
     displacement = lm.tightest(lm.displacement_runs(cfg, none, a_cache, also=paper), paper)
     ids = tuning_ids(cases, rows_paper, quick)
-    by = {r["case_id"]: r for r in rows_paper}
-    caps = [REGRESS_FACTOR * by[i]["cost"] + REGRESS_OFFSET if by[i]["stable"] else float("inf") for i in ids]
+    caps = regression_caps(ids, rows_paper)
     rows = []
     for seed in (None,) + SEEDS:
         with _Perturbed(0.0 if seed is None else PERTURBATION, seed or 0):

@@ -93,7 +93,11 @@ def displacement_map(t: np.ndarray, handwheel: np.ndarray):
     timing comes from the hand-wheel, so the function is linear in the acceleration (the design
     job's tuning applies it to the acceleration's derivatives too)."""
     t = np.asarray(t, float)
-    fs, _, pre, _, s, bos = _timing(t, handwheel)
+    return _displacement(t, *_timing(t, handwheel))
+
+
+def _displacement(t: np.ndarray, fs, _hw, pre, _k0, s, bos):
+    """:func:`displacement_map` from the run's timing (:func:`_timing`)."""
     sel = t >= bos
     ts = t[sel]
 
@@ -111,7 +115,8 @@ def displacement_map(t: np.ndarray, handwheel: np.ndarray):
 def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np.ndarray) -> SwdScore:
     """Score one sine-with-dwell run (hand-wheel angle [rad], yaw rate [rad/s], lateral acceleration [m/s^2])."""
     t = np.asarray(t, float)
-    fs, hw, pre, k0, s, bos = _timing(t, handwheel)
+    timing = _timing(t, handwheel)
+    fs, hw, pre, k0, s, bos = timing
     r = zero_phase(np.asarray(yaw_rate, float), 6.0, fs)
     if pre is not None:
         r = r - r[pre].mean()
@@ -129,7 +134,7 @@ def score_swd(t: np.ndarray, handwheel: np.ndarray, yaw_rate: np.ndarray, ay: np
     win = (t >= t[k_sign]) & (t <= cos + 1.75)
     peak = float(np.max(-s * r[win]))
     ratio = (lambda tt: float(100.0 * (-s) * np.interp(tt, t, r) / peak))
-    lat = displacement_map(t, handwheel)(ay)
+    lat = _displacement(t, *timing)(ay)
     return SwdScore(bos, cos, peak, ratio(cos + 1.0), ratio(cos + 1.75), lat)
 
 

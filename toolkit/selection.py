@@ -37,6 +37,14 @@ def tuning_ids(cases, rows_paper, quick):
     return list(dict.fromkeys(ids))  # once each (a worst case may be one the paper design holds)
 
 
+def regression_caps(ids, rows_paper) -> list[float]:
+    """Per tuning case, the cap on its cost: ``REGRESS_FACTOR`` times the paper design's plus
+    ``REGRESS_OFFSET`` where the paper design holds the case, none (``inf``) where it does not."""
+    from .tuning import REGRESS_FACTOR, REGRESS_OFFSET
+    by = {r["case_id"]: r for r in rows_paper}
+    return [REGRESS_FACTOR * by[i]["cost"] + REGRESS_OFFSET if by[i]["stable"] else float("inf") for i in ids]
+
+
 def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, progress, log, *, ids=None,
                  bounds=None, displacement=None):
     """Tuning with cutting-plane rounds over the sweep, within ``bounds`` (log space; default
@@ -52,7 +60,7 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
 
     Returns ``(point, its sweep rows, the rounds' records, the tuning set as it ended)``.
     """
-    from .tuning import BOUNDS, REGRESS_FACTOR, REGRESS_OFFSET, tune
+    from .tuning import BOUNDS, tune
     paper = cfg.paper
     bounds = BOUNDS if bounds is None else bounds
     max_iter, max_rounds = (12, 2) if quick else (25, 3)
@@ -61,9 +69,8 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
     ids = list(tuning_ids(cases, rows_paper, quick) if ids is None else ids)
     start, rounds, best = paper, [], None
     for k in range(max_rounds):
-        caps = [REGRESS_FACTOR * paper_by[i]["cost"] + REGRESS_OFFSET if paper_by[i]["stable"] else float("inf")
-                for i in ids]
-        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=caps, bounds=bounds,
+        res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=regression_caps(ids, rows_paper),
+                   bounds=bounds,
                    displacement=displacement, starts=TUNING_STARTS,
                    workers=workers if executor == "local" else None, progress=progress)
         cand = dataclasses.replace(res.point, name="tuned")

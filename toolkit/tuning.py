@@ -28,8 +28,9 @@ of a sine-with-dwell run (:class:`DisplacementRun`): linear in the run's lateral
 so the same forward-mode rollout that carries the acceleration's derivatives gives its
 gradient. Reproducible: the cases carry their seeds and IPOPT is deterministic; the lane
 kernel's arithmetic is IEEE without contraction and its own vector ``sin``/``atan``, so the
-same on every x86-64 machine. IPOPT's path does move with rounding (a gradient perturbed by
-1e-12 relative ends elsewhere on the flat ridge of equally good designs).
+same on every x86-64 machine. One IPOPT run's path does move with rounding (a gradient
+perturbed by 1e-12 relative ends elsewhere); several starts (:func:`tune`'s ``starts``) make the
+result depend on it less (``studies/tuning_spread.py``).
 
 The tuning cases are chosen by the caller (:func:`tune` takes them); the design job
 uses the paper design's worst cases of the sweep plus the nominal case, and re-adds
@@ -218,6 +219,16 @@ class RolloutCost:
             th[i] = dth[i, j] = np.exp(phi[j])
         return th, dth
 
+    def _augmented(self, phi: np.ndarray, runs: list, rests: list):
+        """The forward-mode step's inputs for runs of one length: ``(z_aug0, U, pv, theta_aug)`` with
+        zero tangents and sums at the start and theta's derivative by ``phi`` (:func:`_forward_step`)."""
+        k, nz = len(phi), len(runs[0][1])
+        z0 = np.zeros((len(runs), nz * (1 + k) + 4 * (1 + k)))
+        z0[:, :nz] = [z for _, z, _ in runs]
+        thetas = [self._theta(phi, rest) for rest in rests]
+        th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
+        return z0, np.stack([U for U, _, _ in runs]), np.array([p for _, _, p in runs]), th
+
     def batch(self, phi: np.ndarray, runs: list, rests: list) -> list[tuple[float, np.ndarray]]:
         """:meth:`__call__` for many runs (``runs[i]`` with ``rests[i]``), one lane-kernel call."""
         if self.lanes is None:
@@ -226,12 +237,8 @@ class RolloutCost:
             if U.shape[0] != self.n:
                 raise SettingsError(f"rollout has {U.shape[0]} samples, the compiled cost takes {self.n}")
         k, nz = len(phi), len(runs[0][1])
-        z0 = np.zeros((len(runs), nz * (1 + k) + 4 * (1 + k)))
-        z0[:, :nz] = [z for _, z, _ in runs]
-        thetas = [self._theta(phi, rest) for rest in rests]
-        th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
-        z_end, _ = self.lanes(z0, [np.stack([U for U, _, _ in runs]), np.array([p for _, _, p in runs]), th], self.n,
-                              keep=())
+        z0, U, pv, th = self._augmented(phi, runs, rests)
+        z_end, _ = self.lanes(z0, [U, pv, th], self.n, keep=())
         sums = z_end[:, nz * (1 + k):]
         return [(float(_cost_of_sums(q[:4], self.n, self.nz_max)),
                  _cost_of_sums(q[4:].reshape((4, k), order="F"), self.n, self.nz_max)) for q in sums]
@@ -241,18 +248,12 @@ class RolloutCost:
         (samples,) and its derivative by ``phi`` (samples x parameters): the forward-mode lane kernel,
         the runs of one length in one call; without one, the same forward-mode step rolled out by
         casadi's virtual machine (slow, but the same numbers to rounding)."""
-        k = len(phi)
         out: list = [None] * len(runs)
         by_len: dict[int, list[int]] = {}
         for i, (U, _, _) in enumerate(runs):
             by_len.setdefault(U.shape[0], []).append(i)
         for n, idx in by_len.items():
-            nz = len(runs[idx[0]][1])
-            z0 = np.zeros((len(idx), nz * (1 + k) + 4 * (1 + k)))
-            z0[:, :nz] = [runs[i][1] for i in idx]
-            thetas = [self._theta(phi, rests[i]) for i in idx]
-            th = np.array([np.concatenate([t, d.ravel(order="F")]) for t, d in thetas])
-            U, pv = np.stack([runs[i][0] for i in idx]), np.array([runs[i][2] for i in idx])
+            z0, U, pv, th = self._augmented(phi, [runs[i] for i in idx], [rests[i] for i in idx])
             if self.lanes is not None:
                 _, (A,) = self.lanes(z0, [U, pv, th], n)
             else:
