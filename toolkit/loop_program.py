@@ -29,7 +29,7 @@ _CACHE: dict = {}
 class LoopProgram:
     """A loop for one :class:`LoopSpec`, traced and compiled; :meth:`run` takes everything that varies by case.
 
-    Compiled, the loop runs as a lane kernel (:mod:`toolkit.lanes`: :data:`lanes.WIDTH` cases per
+    Compiled, the loop runs as a lane kernel (:mod:`toolkit.lanes`: :func:`lanes.native_width` cases per
     vector instruction, the time loop in C); :meth:`run_batch` rolls many cases out in one call and
     :meth:`run` is its one-case form. Where the kernel cannot be built, casadi's generated C of the
     same step runs instead (``mapaccum`` over chunks of :data:`CHUNK` samples), and without a C
@@ -78,8 +78,9 @@ class LoopProgram:
         spec = self.spec
         if lz.compile and lz.use_lanes:
             try:
+                width = lanes_mod.native_width()
                 lz.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
-                    "loop_lanes", spec, SLOTS, lanes_mod.WIDTH, lanes_mod.machine_tag()), LANE_ROLES)
+                    "loop_lanes", spec, SLOTS, width, lanes_mod.machine_tag()), LANE_ROLES, width=width)
             except CompileError as e:
                 warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
         if lz.compile and lz.lanes is None:

@@ -368,8 +368,9 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
     rounded up to a multiple of the compiled loop's lane width (a task's cases are stepped
     together, :func:`evaluate_cases`).
     """
-    from .lanes import WIDTH
-    batches = _batches(list(cases), -(-max(1, batch) // WIDTH) * WIDTH)
+    from .lanes import native_width
+    width = native_width()
+    batches = _batches(list(cases), -(-max(1, batch) // width) * width)
     results: list[list[dict]] = [None] * len(batches)  # type: ignore[list-item]
     bar = _progress(len(cases), progress)
     if executor == "local":

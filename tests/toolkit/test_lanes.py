@@ -108,12 +108,35 @@ def test_rollout_kernel_equals_casadi_on_exact_arithmetic(tmp_path):
     U = r.normal(size=(n_cases, n, 1))
     A = r.uniform(0.5, 2.0, size=(n_cases, 1))
     Z0 = r.normal(size=(n_cases, 2))
-    for width in (1, lanes.WIDTH):
+    for width in (1, lanes.WIDTH, lanes.WIDE):
         z_end, (Y,) = _kernel(f, tmp_path, width=width)(Z0, [U, A], n)
         for c in range(n_cases):
             Xs, Ys = f.mapaccum(n)(Z0[c], U[c].T, ca.repmat(A[c], 1, n))
             np.testing.assert_array_equal(Y[c], np.array(Ys).T)
             np.testing.assert_array_equal(z_end[c], np.array(Xs)[:, -1])
+
+
+def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
+    # the vector math (sin/cos sharing a reduction, atan, tanh, exp), reciprocal products and
+    # branches of a nonlinear step: the kernel at 1, 4 and 8 lanes gives the same bits, so the lane
+    # width native_width() picks for a machine changes only the speed
+    x, u, a = ca.SX.sym("x", 3), ca.SX.sym("u"), ca.SX.sym("a")
+    xn = ca.vertcat(x[0] + 0.01 * (ca.sin(x[1]) * a - ca.atan(x[0] / a)),
+                    x[1] + 0.01 * (ca.cos(x[1]) + ca.tanh(u * x[2]) - x[1] / a),
+                    ca.if_else(x[2] > 1.0, 0.5 * x[2], x[2] + 0.01 * ca.exp(-x[0] * x[0]) + u / 7.0))
+    f = ca.Function("f", [x, u, a], [xn, ca.vertcat(ca.atan2(x[1], x[0]), ca.sqrt(x[2] * x[2] + u * u))])
+    n_cases, n = 13, 400  # 13: partial blocks at every width
+    r = np.random.default_rng(3)
+    U, A, Z0 = r.normal(size=(n_cases, n, 1)), r.uniform(0.5, 2.0, size=(n_cases, 1)), r.normal(size=(n_cases, 3))
+    runs = [_kernel(f, tmp_path, width=w)(Z0, [U, A], n) for w in (1, lanes.WIDTH, lanes.WIDE)]
+    for z_end, (Y,) in runs[1:]:
+        np.testing.assert_array_equal(z_end, runs[0][0])
+        np.testing.assert_array_equal(Y, runs[0][1][0])
+
+
+def test_native_width_is_a_lane_width_the_kernels_know():
+    assert lanes.native_width() in (lanes.WIDTH, lanes.WIDE)
+    assert cl.program(cl.loop_spec(load_vehicle("micro-ev"))).lanes.width == lanes.native_width()
 
 
 def test_rollout_kernel_division_by_a_case_constant_is_a_product_within_one_ulp(tmp_path):
@@ -158,8 +181,8 @@ def test_lane_kernel_loop_equals_casadis_generated_c():
 
 
 def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep():
-    """Lanes do not see each other: each case of a 50-case batch (7 blocks of lanes, the last
-    partial) equals the same case run alone, on every output, to 1e-12 (they are the same
+    """Lanes do not see each other: each case of a 50-case batch (blocks of lanes, the last
+    partial at 4 or 8 lanes) equals the same case run alone, on every output, to 1e-12 (they are the same
     operations, so in fact bit for bit)."""
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
     cases = sw.sweep_cases(quick=False)[:50]
@@ -183,8 +206,8 @@ def test_run_batch_into_given_arrays_returns_them_with_the_same_numbers():
     """``out=`` (the sweep's reused memory) changes where Y and E land, not what they hold; arrays
     holding garbage from an earlier block are overwritten everywhere (NaN-filled here)."""
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
-    cases = sw.sweep_cases(quick=True)[:5]  # 5 cases: one full block of lanes and a partial one
     prog = cl.program(cfg.spec())
+    cases = sw.sweep_cases(quick=True)[:prog.lanes.width + 1]  # one full block of lanes and a partial one
     runs = [sw.case_inputs(cfg, c, prog)[1][1] for c in cases]  # the step steer of each case
     theta = np.array([prog.theta(gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error) for c in cases])
     args = (np.stack([r[0] for r in runs]), np.stack([r[1] for r in runs]), np.stack([r[2] for r in runs]), theta)
