@@ -59,7 +59,7 @@ def main(argv=None):
     spec = cl.loop_spec(p, sensors=sens)
     prog = cl.program(spec).compile()  # build and compile once
     best = np.inf
-    for _ in range(5):
+    for _ in range(15):
         t0 = time.perf_counter()
         U, z0, pv = prog.inputs(p, man, dist, sens, 0)
         Y, _ = prog.run(U, z0, pv, prog.theta())
