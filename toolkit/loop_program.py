@@ -79,8 +79,10 @@ class LoopProgram:
         if lz.compile and lz.use_lanes:
             try:
                 width = lanes_mod.native_width()
+                flags = lanes_mod.kernel_flags(width)
                 lz.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
-                    "loop_lanes", spec, SLOTS, width, lanes_mod.machine_tag()), LANE_ROLES, width=width)
+                    "loop_lanes", spec, SLOTS, width, flags, lanes_mod.machine_tag()), LANE_ROLES, flags=flags,
+                    width=width)
             except CompileError as e:
                 warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
         if lz.compile and lz.lanes is None:

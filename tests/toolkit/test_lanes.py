@@ -85,12 +85,13 @@ def test_vector_atan2_quadrants_axes_and_signed_zeros(mathlib):
     assert np.all(_same(_call(mathlib, "atan2", Y, X), np.arctan2(Y, X)))  # C99 Annex F, exactly
 
 
-def _kernel(fn, tmp_path, stepped=(1,), width=lanes.WIDTH):
+def _kernel(fn, tmp_path, stepped=(1,), width=lanes.WIDTH, flags=lanes.CFLAGS):
     src = lanes.rollout_source(fn, "k", lanes.Roles(stepped=stepped), width=width)
-    c = tmp_path / f"k{width}.c"
+    tag = f"{width}{flags[0]}"
+    c = tmp_path / f"k{tag}.c"
     c.write_text(src)
-    so = tmp_path / f"k{width}.so"
-    subprocess.run([compiler(), *lanes.CFLAGS, "-shared", "-fPIC", "-o", str(so), str(c), "-lm"], check=True)
+    so = tmp_path / f"k{tag}.so"
+    subprocess.run([compiler(), *flags, "-shared", "-fPIC", "-o", str(so), str(c), "-lm"], check=True)
     return lanes.LaneRollout(so, "k", fn, lanes.Roles(stepped=stepped))
 
 
@@ -119,7 +120,8 @@ def test_rollout_kernel_equals_casadi_on_exact_arithmetic(tmp_path):
 def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
     # the vector math (sin/cos sharing a reduction, atan, tanh, exp), reciprocal products and
     # branches of a nonlinear step: the kernel at 1, 4 and 8 lanes gives the same bits, so the lane
-    # width native_width() picks for a machine changes only the speed
+    # width native_width() picks for a machine (and the optimisation level, kernel_flags) changes only
+    # the speed
     x, u, a = ca.SX.sym("x", 3), ca.SX.sym("u"), ca.SX.sym("a")
     xn = ca.vertcat(x[0] + 0.01 * (ca.sin(x[1]) * a - ca.atan(x[0] / a)),
                     x[1] + 0.01 * (ca.cos(x[1]) + ca.tanh(u * x[2]) - x[1] / a),
@@ -128,7 +130,9 @@ def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
     n_cases, n = 13, 400  # 13: partial blocks at every width
     r = np.random.default_rng(3)
     U, A, Z0 = r.normal(size=(n_cases, n, 1)), r.uniform(0.5, 2.0, size=(n_cases, 1)), r.normal(size=(n_cases, 3))
-    runs = [_kernel(f, tmp_path, width=w)(Z0, [U, A], n) for w in (1, lanes.WIDTH, lanes.WIDE)]
+    runs = [_kernel(f, tmp_path, width=w, flags=lanes.kernel_flags(w))(Z0, [U, A], n)
+            for w in (1, lanes.WIDTH, lanes.WIDE)]
+    runs.append(_kernel(f, tmp_path, width=lanes.WIDE)(Z0, [U, A], n))  # -O3 as well
     for z_end, (Y,) in runs[1:]:
         np.testing.assert_array_equal(z_end, runs[0][0])
         np.testing.assert_array_equal(Y, runs[0][1][0])
