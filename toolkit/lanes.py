@@ -45,6 +45,10 @@ registers the machine has."""
 WIDE = 8
 """Lanes per vector of a loop kernel where ``-march=native`` has AVX-512 (:func:`native_width`)."""
 
+CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno")
+"""No fused multiply-add and no fast-math: every lane's arithmetic is IEEE, as in a scalar
+evaluation. ``-fno-math-errno`` only lets ``sqrt`` and ``floor`` vectorise (errno is never read)."""
+
 
 def kernel_flags(width: int) -> tuple[str, ...]:
     """The compiler flags of a loop kernel of ``width`` lanes: :data:`CFLAGS`, at ``-O2`` for
@@ -78,9 +82,6 @@ def native_width() -> int:
         return WIDTH
     return WIDE if res.returncode == 0 and "__AVX512F__" in res.stdout else WIDTH
 
-CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno")
-"""No fused multiply-add and no fast-math: every lane's arithmetic is IEEE, as in a scalar
-evaluation. ``-fno-math-errno`` only lets ``sqrt`` and ``floor`` vectorise (errno is never read)."""
 
 MATH_C = r"""
 #include <math.h>
