@@ -384,16 +384,6 @@ def _expr(nodes: list[_Node], n: int, name, sincos: dict) -> str:
     return _BINARY[node.op].format(a=args[0], b=args[1])
 
 
-def _shared(fn: ca.Function) -> ca.Function:
-    """``fn`` with its repeated subexpressions computed once (casadi's ``cse``: an operation on the
-    same operands as an earlier one reuses its value). A trace repeats much: every RK4 stage takes
-    the sine and cosine of the same held steer angle, and a loop step reads the same schedule row
-    for its filter and its law. Exactly the same values, as the merged operations were the same;
-    the micro-ev's two-track loop step goes from 4,279 to 3,698 instructions (55 to 34 sines)."""
-    outs = ca.cse(fn.call(fn.sx_in()))
-    return ca.Function(fn.name(), fn.sx_in(), outs, fn.name_in(), fn.name_out())
-
-
 def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH) -> str:
     """C source of ``int fname(long n_steps, long n_cases, const double* z0, const double* const* in,
     double* z_end, double* const* out)``: ``n_steps`` samples of ``fn`` for ``n_cases`` cases.
@@ -405,7 +395,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
 
     What the per-case inputs alone determine is computed once per block, before the time loop,
     and divisions by it become products (:func:`_strength_reduce`); repeated subexpressions are
-    computed once (:func:`_shared`); ``sin`` and ``cos`` of one argument share their range reduction.
+    computed once (:func:`toolkit.compiled.shared`); ``sin`` and ``cos`` of one argument share their range reduction.
     """
     if not fn.is_a("SXFunction"):
         raise CompileError(f"{fn.name()}: a lane kernel needs an SX function")
@@ -419,7 +409,8 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
     if fn.nnz_in(0) != fn.nnz_out(0):
         raise CompileError(f"{fn.name()}: the state (input 0, output 0) must keep its size")
     nz = fn.nnz_in(0)
-    fn = _shared(fn)
+    from .compiled import shared
+    fn = shared(fn)
     stepped = set(roles.stepped)
     consts = [i for i in range(1, n_in) if i not in stepped]
     nodes, outputs = _nodes(fn, set(consts))

@@ -4,6 +4,7 @@ column, writes nothing, and shows no traceback."""
 
 import csv
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -132,3 +133,45 @@ def test_export_of_a_missing_folder_is_a_sentence(tmp_path, capsys):
     assert main(["export", str(tmp_path / "nothing"), "--out", str(tmp_path / "fw")]) == 2
     err = capsys.readouterr().err
     assert "no such file; expected an 'evstab design' folder" in err and "Errno" not in err
+
+
+_RACE = r"""
+import sys, time
+from pathlib import Path
+from evstab.toolkit.compiled import compile_source
+tmp = Path(sys.argv[1])
+(tmp / f"ready{sys.argv[2]}").touch()
+while not (tmp / "go").exists():
+    time.sleep(0.01)
+def write(path):
+    with open(tmp / "writes.log", "a") as fh:
+        fh.write(sys.argv[2] + "\n")
+    time.sleep(1.0)  # a slow build: the other process asks for the library meanwhile
+    path.write_text("double answer(void) { return 42.0; }\n")
+print(compile_source(write, "race_test", ("-O1",), "nothing"))
+"""
+
+
+def test_two_processes_asking_for_one_library_build_it_once(tmp_path):
+    # two processes (as a sweep's workers at start) ask for the same library at the same moment:
+    # one builds it, the other waits and loads it (without the lock both wrote and compiled it)
+    import subprocess
+    import sys
+    import time
+    from evstab.toolkit.compiled import compiler
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    cache = tmp_path / "cache"
+    env = {**os.environ, "EVSTAB_CACHE": str(cache)}
+    procs = [subprocess.Popen([sys.executable, "-c", _RACE, str(tmp_path), str(i)], env=env, stdout=subprocess.PIPE,
+                              text=True) for i in (1, 2)]
+    t0 = time.monotonic()
+    while not all((tmp_path / f"ready{i}").exists() for i in (1, 2)):
+        assert time.monotonic() - t0 < 120, "the processes did not start"
+        time.sleep(0.01)
+    (tmp_path / "go").touch()
+    outs = [p.communicate(timeout=120)[0].strip() for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert outs[0] == outs[1] == str(cache / "evstab_race_test.so")
+    assert (tmp_path / "writes.log").read_text().split() in (["1"], ["2"])
+    assert sorted(f.name for f in cache.iterdir()) == ["evstab_race_test.so"]  # no lock or temporary left
