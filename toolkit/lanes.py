@@ -65,9 +65,9 @@ def native_width() -> int:
 
     A loop step is one long chain of dependent operations, so a vector's step waits on latencies
     more than on arithmetic. Eight lanes fill one AVX-512 register, and its 32 registers hold the
-    step's working values: on a 2-core AMD EPYC (Zen 4), a two-track loop step took 440 ns per case
-    at 8 lanes against 780 ns at 4, the multi-body car's 1.67 against 2.92 us and the bicycle's
-    214 against 250 ns, bit for bit the same results. Without AVX-512 the same 8 lanes are two AVX2
+    step's working values: on a 2-core AMD EPYC (Zen 4), a two-track loop step took 449 ns per case
+    at 8 lanes against 687 ns at 4 and the multi-body car's 1.47 against 2.61 us, bit for bit the
+    same results (the bicycle's, short enough for 4 lanes, 207 against 197 ns). Without AVX-512 the same 8 lanes are two AVX2
     registers, the 16 of them spill, and the two-track step took 1.55 us per case against 0.78 at 4
     lanes (the same machine, ``-mno-avx512f``). The tuning's forward-mode kernel, seven times the
     values per step, stays at :data:`WIDTH` (18.1 against 15.9 ms per run at 8 lanes)."""
