@@ -114,6 +114,14 @@ def test_estimation_on_the_multibody_car_meets_the_targets(tmp_path):
     for (drive, nominal, method), v in by.items():
         if method == "amrkf":
             assert v <= by[(drive, nominal, "dakf")] + 0.005, (drive, nominal)
+    # nor is dakf worse than the plain bias-aware KF (kf-bias, no disturbance states): where the model
+    # holds its sideslip output is the estimate conditioned on zero disturbances (kalman.significant_sideslip),
+    # which keeps what the filter learnt with the disturbances present; 0.005 deg RMS of slack (the full
+    # study's 64 log-and-nominal pairs: at most 0.0036 above kf-bias, on the Escort's double lane change;
+    # these drives 0.0016; without the conditioning 0.029)
+    for (drive, nominal, method), v in by.items():
+        if method in ("dakf", "amrkf"):
+            assert v <= by[(drive, nominal, "kf-bias")] + 0.005, (drive, nominal, method)
 
 
 def test_nominal_fits_reproduce_the_bundled_files(tmp_path):

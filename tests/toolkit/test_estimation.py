@@ -358,3 +358,37 @@ def test_riccati_map_composition_equals_applying_the_maps_in_turn():
     for _ in range(7):
         seq = apply(m1, seq)
     np.testing.assert_allclose(apply(_power(m1, 7), P), seq, rtol=1e-10)
+
+
+def test_the_sideslip_output_is_the_estimate_conditioned_on_zero_disturbances_while_they_are_insignificant():
+    # kalman.significant_sideslip against Gaussian conditioning written out with numpy's solver: for a
+    # posterior (x, P), conditioning on d = (d1, d2) = 0 gives beta - P_bd P_dd^-1 d; chi2 = d^T P_dd^-1 d
+    # below disturbance_chi2_on gives that, above disturbance_chi2_full the estimate itself, and the
+    # casadi trace (compiled filters, firmware) evaluates the same expression
+    import casadi as ca
+    from evstab.plants.backend import CASADI
+    from evstab.toolkit.estimation.kalman import conditions_sideslip, significant_sideslip
+    p = load_vehicle("compact-ev")
+    d = design_filter("dakf", p)  # on logs: estimation_noise(), which conditions
+    assert conditions_sideslip(d) and conditions_sideslip(design_filter("amrkf", p))
+    # the ECU's filter does not (its noise is CONTROL_NOISE), nor a filter without disturbance states
+    assert not conditions_sideslip(design_filter("dakf", p, control=True))
+    assert not conditions_sideslip(design_filter("kf-bias", p, estimation_noise()))
+    nz = d.noise
+    rng = np.random.default_rng(7)
+    n = len(d.states)
+    A = rng.normal(size=(n, n))
+    P = A @ A.T + 0.1 * np.eye(n)
+    ib, idd = d.index("beta"), [d.index("d1"), d.index("d2")]
+    Pdd = P[np.ix_(idd, idd)]
+    for chi2_target, w in ((0.5 * nz.disturbance_chi2_on, 0.0), (2.0 * nz.disturbance_chi2_full, 1.0)):
+        x = rng.normal(size=n)
+        dd = x[idd] / np.sqrt(x[idd] @ np.linalg.solve(Pdd, x[idd])) * np.sqrt(chi2_target)  # scaled to chi2_target
+        x[idd] = dd
+        conditioned = x[ib] - P[ib, idd] @ np.linalg.solve(Pdd, dd)
+        want = conditioned + w * (x[ib] - conditioned)
+        # rounding of a 2 x 2 solve against numpy's LU: a few units in the last place of O(1) numbers
+        assert significant_sideslip(d, x, P, NUMPY) == pytest.approx(want, abs=1e-12)
+        xs, Ps = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
+        f = ca.Function("f", [xs, Ps], [significant_sideslip(d, xs, Ps, CASADI)])
+        assert float(f(x, P)) == pytest.approx(significant_sideslip(d, x, P, NUMPY), abs=1e-15)

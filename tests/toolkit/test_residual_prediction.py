@@ -52,11 +52,14 @@ def test_white_innovations_leave_amrkf_equal_to_dakf_and_the_printed_method_over
     log = simulate(p, "two-track", sine_lane_change(25 / 3.6, np.radians(4.0), start=2.0, period=3.0, duration=12.0),
                    seed=1).log_columns()
     amr = design_filter("amrkf", p)
-    paper = dataclasses.replace(amr, noise=dataclasses.replace(amr.noise, residual_corr_fixes=0.0))
+    # the filter's own sideslip (the output not conditioned on the disturbances: that would hide the
+    # over-correction, which goes into d1 and d2 while they stay insignificant, 0.190 against 0.191 deg)
+    own = dataclasses.replace(amr.noise, disturbance_chi2_on=0.0, disturbance_chi2_full=0.0)
+    paper = dataclasses.replace(amr, noise=dataclasses.replace(own, residual_corr_fixes=0.0))
 
     def rms(d):
         e = run_estimator(d, log)["beta"] - log["beta_true"]
         return np.sqrt(np.mean(e[log["t"] >= 1.0] ** 2))
     a, b = run_estimator(amr, log)["beta"], run_estimator(design_filter("dakf", p), log)["beta"]
     np.testing.assert_array_equal(a, b)
-    assert rms(paper) > 1.2 * rms(amr)  # measured 0.29 / 0.22 deg
+    assert rms(paper) > 1.2 * rms(dataclasses.replace(amr, noise=own))  # measured 0.29 / 0.22 deg

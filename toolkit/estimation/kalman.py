@@ -389,11 +389,43 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
     if adapts(d):
         est["noise_scale"] = qscale
-    y = outputs(o, v, beta=x[ib], yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
+    beta = significant_sideslip(d, x, P, o) if conditions_sideslip(d) else x[ib]
+    y = outputs(o, v, beta=beta, yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
                 gps_used=o.fmax(accept, first), nis=o.if_else(usable > 0.5, nis, nan),
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
                 gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))
     return z_next, y
+
+
+def conditions_sideslip(d: FilterDesign) -> bool:
+    """Whether the design's sideslip output is significance-weighted (:func:`significant_sideslip`)."""
+    return bool(d.noise.disturbance_chi2_full > 0 and "d1" in d.states and "d2" in d.states)
+
+
+def significant_sideslip(d: FilterDesign, x, P, o):
+    """The sideslip output of a filter with disturbance states: the estimate conditioned on zero
+    disturbances where the disturbance estimates are insignificant, the estimate itself where they are.
+
+    Conditioning the Gaussian posterior on the pseudo-measurement ``d = 0`` gives
+    ``beta_0 = beta - P_bd P_dd^-1 d``: what the filter would say of the sideslip if the linear model
+    were exactly right, with everything it learnt from the measurements kept. Where the model is
+    right the disturbance states hold only course noise, which ``beta_0`` drops; where it is wrong
+    (tyres beyond their linear range, a wrong cornering stiffness) the disturbances are large against
+    their spread, ``chi2 = d^T P_dd^-1 d`` grows, and the output returns to ``beta`` by a smoothstep
+    of ``chi2`` between ``disturbance_chi2_on`` and ``disturbance_chi2_full``. The filter's recursion
+    and its covariance are untouched (``beta_std`` stays the filter's, which bounds the conditioned
+    estimate's spread too)."""
+    nz = d.noise
+    ib, i1, i2 = d.index("beta"), d.index("d1"), d.index("d2")
+    a, b, c = P[i1, i1], P[i1, i2], P[i2, i2]
+    det = o.fmax(a * c - b * b, 1e-300)  # P_dd is positive definite; the floor keeps a degenerate one finite
+    d1, d2 = x[i1], x[i2]
+    g1, g2 = (c * d1 - b * d2) / det, (a * d2 - b * d1) / det  # P_dd^-1 d
+    chi2 = d1 * g1 + d2 * g2
+    s = o.fmin(o.fmax((chi2 - nz.disturbance_chi2_on) / (nz.disturbance_chi2_full - nz.disturbance_chi2_on), 0.0),
+               1.0)
+    w = s * s * (3.0 - 2.0 * s)
+    return x[ib] - (1.0 - w) * (P[ib, i1] * g1 + P[ib, i2] * g2)
 
 
 def roll_compensation(p) -> float:

@@ -196,6 +196,15 @@ class NoiseSettings:
     adapt_settle: float = 2.0
     """[s] The scale starts to adapt this long after the first fix (and again after the gyro was found
     stuck)."""
+    disturbance_chi2_on: float = 0.0
+    """Significance-weighted sideslip output (filters with the disturbance states ``d1``, ``d2``;
+    ``disturbance_chi2_full`` 0 = off): the sideslip output is the estimate conditioned on zero
+    disturbances, ``beta - P_bd P_dd^-1 d``, while the disturbance estimates are insignificant,
+    and the filter's own estimate once they are, blended by a smoothstep of
+    ``chi2 = d^T P_dd^-1 d`` from this value ..."""
+    disturbance_chi2_full: float = 0.0
+    """... to this one (:func:`toolkit.estimation.kalman.significant_sideslip`). The filter's state
+    and ``beta_std`` are not changed."""
     residual_corr_fixes: float = 20.0
     """[fixes] The memory of the fix innovations' lag-one correlation ``rho`` that weighs ``amrkf``'s
     inter-sample residual prediction (:func:`toolkit.estimation.kalman._prediction_weight`): the
@@ -235,6 +244,9 @@ class NoiseSettings:
         if self.adapt_max < self.adapt_min:
             raise ModelError(f"noise setting 'adapt_max' ({self.adapt_max!r}) must be >= 'adapt_min' "
                              f"({self.adapt_min!r})")
+        if self.disturbance_chi2_full and self.disturbance_chi2_full <= self.disturbance_chi2_on:
+            raise ModelError(f"noise setting 'disturbance_chi2_full' ({self.disturbance_chi2_full!r}) must be 0 (off) "
+                             f"or above 'disturbance_chi2_on' ({self.disturbance_chi2_on!r})")
         if 0 < self.residual_corr_fixes < 1:
             raise ModelError(f"noise setting 'residual_corr_fixes' must be 0 (unweighted) or >= 1, got "
                              f"{self.residual_corr_fixes!r}")
@@ -315,7 +327,8 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     return NoiseSettings(gyro_std=s.gyro_noise, gps_velocity_std=s.gps_velocity_noise, q_beta=1.4e-7,
                          q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=q_d1, q_d2=q_d2, q_bias=5e-8,
                          d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
-                         adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1)
+                         adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1,
+                         disturbance_chi2_on=2.0, disturbance_chi2_full=6.0)
 
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
