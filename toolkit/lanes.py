@@ -37,6 +37,7 @@ import numpy as np
 from evstab.plants.backend import LANE_INTRINSICS
 from evstab.plants.errors import CompileError, DataError
 
+from .compiled import compile_source, compiler, shared
 from .lane_math import BINARY, MATH_C, UNARY
 
 WIDTH = 4
@@ -73,7 +74,6 @@ def native_width() -> int:
     same 8 lanes are two AVX2 registers, the 16 of them spill, and the two-track step took 1.55 us
     per case (the same machine, ``-mno-avx512f``). The tuning's forward-mode kernel, seven times the
     values per step, stays at :data:`WIDTH` (18.1 against 15.9 ms per run at 8 lanes)."""
-    from .compiled import compiler
     cc = compiler()
     if cc is None:
         return WIDTH
@@ -224,7 +224,6 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
     if fn.nnz_in(0) != fn.nnz_out(0):
         raise CompileError(f"{fn.name()}: the state (input 0, output 0) must keep its size")
     nz = fn.nnz_in(0)
-    from .compiled import shared
     fn = shared(fn)
     stepped = set(roles.stepped)
     consts = [i for i in range(1, n_in) if i not in stepped]
@@ -406,7 +405,6 @@ def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout",
     cache, built when missing (with ``flags``: :data:`CFLAGS` or others that keep its arithmetic IEEE;
     ``width`` lanes per vector, which ``key`` must name); None without a C compiler or when the
     compiler fails."""
-    from .compiled import compile_source, compiler
     if compiler() is None:
         return None
     fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
