@@ -116,6 +116,29 @@ def gps_fix_mask(t: np.ndarray, cfg: SensorConfig) -> np.ndarray:
     return mask
 
 
+STREAM_ROWS = {"steer": 1, "gyro": 1, "roll_gyro": 1, "accel": 2, "speed": 1, "wheel": 4, "gps": 2, "heading": 1,
+               "gps_roll": 1}
+"""Rows of standard-normal draws per sample of each stream (:func:`draw_noise`)."""
+
+
+def noise_rows(seed: int, n: int, streams: tuple[str, ...]) -> np.ndarray:
+    """The draws of :func:`draw_noise` for ``streams`` alone, stacked in that order as the rows of one
+    ``(rows, n)`` array (a stream of several rows gives them in its order): the same numbers, drawn
+    straight into place, and the streams not asked for not drawn."""
+    unknown = [s for s in streams if s not in STREAM_ROWS]
+    if unknown:
+        raise ModelError(f"unknown noise stream(s) {', '.join(unknown)}; known: {', '.join(STREAMS)}")
+    children = np.random.SeedSequence(seed).spawn(len(STREAMS))
+    out = np.empty((sum(STREAM_ROWS[s] for s in streams), n))
+    r = 0
+    for name in streams:
+        k = STREAM_ROWS[name]
+        rng = np.random.default_rng(children[STREAMS.index(name)])
+        rng.standard_normal(out=out[r] if k == 1 else out[r:r + k])  # shape (n) or (k, n), as draw_noise draws
+        r += k
+    return out
+
+
 def draw_noise(cfg: SensorConfig, seed: int, n: int) -> dict:
     """All noise of a run of ``n`` samples, drawn once (one stream per sensor)."""
     rng = _streams(seed)

@@ -45,7 +45,7 @@ from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehiclePara
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.disturbances import Disturbances, disturbance_profile
 from evstab.plants.maneuvers import Maneuver
-from evstab.plants.sensors import SensorConfig, draw_noise, gps_fix_mask, readings
+from evstab.plants.sensors import SensorConfig, gps_fix_mask, noise_rows, readings
 from evstab.plants.signals import Layout, Signal
 
 from .compiled import numeric_fields, param_vector, rk4_step, rk4_substeps, symbolic_view, with_fields
@@ -61,6 +61,8 @@ if TYPE_CHECKING:
 NOISE = Layout("loop noise", [Signal(k, "-", f"standard-normal draw of the {k} sensor's noise") for k in (
     "steer", "gyro", "roll_gyro", "accel_x", "accel_y", "wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr", "speed",
     "gps_e", "gps_n", "heading")])
+NOISE_STREAMS = ("steer", "gyro", "roll_gyro", "accel", "wheel", "speed", "gps", "heading")
+"""The sensor noise streams whose rows make :data:`NOISE`, in its order (:func:`noise_matrix`)."""
 EXTRA = Layout("loop signals", [
     Signal("steer", "rad", "road-wheel angle applied over the period"),
     Signal("yaw_moment", "N m", "yaw moment the motors achieved"),
@@ -429,7 +431,7 @@ def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, distu
     col["noise"][:] = noise.T
     fix = gps_fix_mask(t, sensors)
     col["fix"][:] = fix
-    col["capture"][:], col["emit"][:] = latch_schedule_parts(fix, sensors.gps_latency, dt)
+    latch_schedule_parts(fix, sensors.gps_latency, dt, out=(col["capture"], col["emit"]))
     need = rk4_substeps(model, params, dt)
     if need > spec.n_sub:
         raise LoopError(f"'{params.name}': these plant parameters need {need} RK4 sub-steps per sample, the "
@@ -443,10 +445,25 @@ def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, distu
         path = maneuver.path
         x0[model.state_index("x")], x0[model.state_index("y")] = path.x[0], path.y[0]
         x0[model.state_index("yaw")] = np.arctan2(path.y[1] - path.y[0], path.x[1] - path.x[0])
-    return U, loop_initial_state(spec, x0, params, maneuver.speed, W[:, 0]), param_vector(params, names)
+    return U, _initial_state_of_run(spec, x0, params, maneuver.speed, W[:, 0]), param_vector(params, names)
 
 
 _ECU_START: dict = {}
+_RUN_START: dict = {}
+
+
+def _initial_state_of_run(spec: LoopSpec, x0, params: VehicleParams, speed: float, w0) -> np.ndarray:
+    """:func:`loop_initial_state`, remembered for the last runs: a sweep's case starts each of its
+    manoeuvres from the same state (same parameters, speed and first disturbance sample), and the
+    plant's output equation in numpy costs a sixth of a manoeuvre's inputs."""
+    x0, w0 = np.asarray(x0, float), np.asarray(w0, float)
+    key = (id(spec), id(params), float(speed), x0.tobytes(), w0.tobytes())
+    hit = _RUN_START.get(key)
+    if hit is None or hit[0] is not spec or hit[1] is not params:  # identity: ids are reused after collection
+        if len(_RUN_START) > 64:
+            _RUN_START.clear()
+        hit = _RUN_START[key] = (spec, params, loop_initial_state(spec, x0, params, speed, w0))
+    return hit[2].copy()
 
 
 def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, w0) -> np.ndarray:
@@ -472,18 +489,28 @@ def loop_initial_state(spec: LoopSpec, x0, params: VehicleParams, speed: float, 
 
 
 def noise_matrix(cfg: SensorConfig, seed: int, n: int) -> np.ndarray:
-    """The standard-normal draws of a run, one row per :data:`NOISE` entry (the simulator's streams)."""
-    nz = draw_noise(cfg, seed, n)
-    rows = [nz["steer"], nz["gyro"], nz["roll_gyro"], nz["accel"][0], nz["accel"][1], *nz["wheel"], nz["speed"],
-            nz["gps"][0], nz["gps"][1], nz["heading"]]
-    return np.vstack(rows)
+    """The standard-normal draws of a run, one row per :data:`NOISE` entry (the simulator's streams,
+    :func:`plants.sensors.draw_noise`)."""
+    return noise_rows(seed, n, NOISE_STREAMS)
 
 
-def latch_schedule_parts(fix: np.ndarray, latency: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def latch_schedule_parts(fix: np.ndarray, latency: float, dt: float,
+                         out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The (samples x SLOTS) capture and emit one-hots of :func:`latch_schedule` (the :data:`INPUTS`
-    entries ``capture`` and ``emit``)."""
-    both = latch_schedule(fix, latency, dt)
-    return both[:SLOTS].T, both[SLOTS:].T
+    entries ``capture`` and ``emit``); ``out``: two (samples x SLOTS) arrays (views of an input
+    matrix) to fill and return instead (zeroed, then the ones written: no dense temporary)."""
+    slot, cap, emit = _latch_indices(fix, latency, dt)
+    if out is None:
+        both = np.zeros((2 * SLOTS, len(fix)))
+        both[slot, cap] = 1.0
+        both[SLOTS + slot, emit] = 1.0
+        return both[:SLOTS].T, both[SLOTS:].T
+    capture, emitted = out
+    capture[...] = 0.0
+    emitted[...] = 0.0
+    capture[cap, slot] = 1.0
+    emitted[emit, slot] = 1.0
+    return capture, emitted
 
 
 def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:
@@ -493,22 +520,26 @@ def latch_schedule(fix: np.ndarray, latency: float, dt: float) -> np.ndarray:
     first sample). Fix i uses slot i mod SLOTS; a slot must not be captured again before its
     fix has been emitted.
     """
+    slot, cap, emit = _latch_indices(fix, latency, dt)
+    out = np.zeros((2 * SLOTS, len(fix)))
+    out[slot, cap] = 1.0
+    out[SLOTS + slot, emit] = 1.0
+    return out
+
+
+def _latch_indices(fix: np.ndarray, latency: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(slot, capture sample, emit sample) of each fix of :func:`latch_schedule`."""
     lag = latency / dt
     if abs(lag - round(lag)) > 1e-9 or lag < 0:
         raise LoopError(f"the loop needs a GPS latency of whole samples >= 0, got {latency} s at dt {dt} s")
     lag = int(round(lag))
-    n = len(fix)
-    out = np.zeros((2 * SLOTS, n))
     ks = np.nonzero(np.asarray(fix) > 0.5)[0]
     caps = np.maximum(ks - lag, 0)
-    for i, (k, c) in enumerate(zip(ks, caps)):
-        j = i % SLOTS
-        if i >= SLOTS and caps[i] <= ks[i - SLOTS]:
-            raise LoopError(f"GPS latency {latency} s spans more than {SLOTS - 1} fix periods; "
-                            f"the loop holds at most {SLOTS} fixes in flight")
-        out[j, c] = 1.0
-        out[SLOTS + j, k] = 1.0
-    return out
+    # fix i reuses fix i - SLOTS's slot: that fix must have been emitted before this one is captured
+    if len(ks) > SLOTS and np.any(caps[SLOTS:] <= ks[:-SLOTS]):
+        raise LoopError(f"GPS latency {latency} s spans more than {SLOTS - 1} fix periods; "
+                        f"the loop holds at most {SLOTS} fixes in flight")
+    return np.arange(len(ks)) % SLOTS, caps, ks
 
 
 def loop_spec(nominal: VehicleParams, *, plant: str = "two-track", controller: str = "two-dof",

@@ -113,6 +113,15 @@ def test_same_seed_same_noise_and_independent_streams():
     np.testing.assert_array_equal(a["yaw_rate"], c["yaw_rate"])  # other sensors' streams untouched
 
 
+def test_noise_rows_are_draw_noises_streams_stacked():
+    from evstab.plants.sensors import draw_noise, noise_rows
+    full = draw_noise(SensorConfig(), 11, 300)
+    rows = noise_rows(11, 300, ("wheel", "gyro", "gps"))  # any subset, any order: each stream's own draws
+    np.testing.assert_array_equal(rows, np.vstack([full["wheel"], full["gyro"], full["gps"]]))
+    with pytest.raises(ModelError, match="unknown noise stream.*'?compass"):
+        noise_rows(11, 300, ("gyro", "compass"))
+
+
 def test_low_speed_course_is_nan():
     n = 1000
     m = measure(np.arange(n) * 1e-3, truth_const(n, vx=np.full(n, 0.1)), inputs(n), SensorConfig(), 0, 0.3)

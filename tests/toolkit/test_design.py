@@ -158,6 +158,25 @@ def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
         latch_schedule(fix, 0.2, 1e-3)
 
 
+def test_latch_schedule_captures_each_fix_lag_samples_early_in_its_slot():
+    from evstab.plants.sensors import SensorConfig, gps_fix_mask
+    from evstab.toolkit.closed_loop import latch_schedule, latch_schedule_parts
+    t = np.arange(2000) * 1e-3
+    fix = gps_fix_mask(t, SensorConfig(gps_rate=20.0))
+    ks = np.nonzero(fix)[0]
+    sched = latch_schedule(fix, 0.15, 1e-3)
+    want = np.zeros((8, 2000))
+    for i, k in enumerate(ks):  # fix i: slot i mod 4, captured 150 samples before it arrives (not before 0)
+        want[i % 4, max(k - 150, 0)] = 1.0
+        want[4 + i % 4, k] = 1.0
+    assert np.array_equal(sched, want)
+    # written into an input matrix's columns: whatever they held is replaced
+    U = np.full((2000, 8), 7.0)
+    latch_schedule_parts(fix, 0.15, 1e-3, out=(U[:, :4], U[:, 4:]))
+    assert np.array_equal(U.T, want)
+    assert all(np.array_equal(a, b) for a, b in zip(latch_schedule_parts(fix, 0.15, 1e-3), (want[:4].T, want[4:].T)))
+
+
 def test_quick_cases_cover_the_issue_ranges():
     cases = sw.sweep_cases(quick=False)
     cf = [c.cf_scale for c in cases]
