@@ -24,9 +24,24 @@ def rng():
 
 
 @pytest.fixture(scope="session")
-def quick_design_dir(tmp_path_factory):
-    """``evstab design --quick`` on compact-ev, run once for every test that needs a real design folder."""
+def quick_design_dir(tmp_path_factory, request):
+    """``evstab design --quick`` on compact-ev, run once for every test that needs a real design folder
+    (once per run: with pytest-xdist's workers, the first to need it makes it in their common temporary
+    folder while the others wait on a lock, then all read it)."""
     from evstab.toolkit.cli import main
-    out = tmp_path_factory.mktemp("quick_design")
-    assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+    if not hasattr(request.config, "workerinput"):  # not a pytest-xdist worker
+        out = tmp_path_factory.mktemp("quick_design")
+        assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+        return out
+    import fcntl
+    root = tmp_path_factory.getbasetemp().parent  # common to the workers of this run
+    out, done = root / "quick_design", root / "quick_design.done"
+    with open(root / "quick_design.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists():
+                assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+                done.touch()
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
     return out
