@@ -499,12 +499,10 @@ def latch_schedule_parts(fix: np.ndarray, latency: float, dt: float,
     """The (samples x SLOTS) capture and emit one-hots of :func:`latch_schedule` (the :data:`INPUTS`
     entries ``capture`` and ``emit``); ``out``: two (samples x SLOTS) arrays (views of an input
     matrix) to fill and return instead (zeroed, then the ones written: no dense temporary)."""
-    slot, cap, emit = _latch_indices(fix, latency, dt)
     if out is None:
-        both = np.zeros((2 * SLOTS, len(fix)))
-        both[slot, cap] = 1.0
-        both[SLOTS + slot, emit] = 1.0
+        both = latch_schedule(fix, latency, dt)
         return both[:SLOTS].T, both[SLOTS:].T
+    slot, cap, emit = _latch_indices(fix, latency, dt)
     capture, emitted = out
     capture[...] = 0.0
     emitted[...] = 0.0
