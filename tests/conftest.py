@@ -29,10 +29,13 @@ def quick_design_dir(tmp_path_factory, request):
     (once per run: with pytest-xdist's workers, the first to need it makes it in their common temporary
     folder while the others wait on a lock, then all read it)."""
     from evstab.toolkit.cli import main
-    if not hasattr(request.config, "workerinput"):  # not a pytest-xdist worker
-        out = tmp_path_factory.mktemp("quick_design")
+
+    def design(out):
         assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
         return out
+
+    if not hasattr(request.config, "workerinput"):  # not a pytest-xdist worker
+        return design(tmp_path_factory.mktemp("quick_design"))
     import fcntl
     root = tmp_path_factory.getbasetemp().parent  # common to the workers of this run
     out, done = root / "quick_design", root / "quick_design.done"
@@ -40,7 +43,7 @@ def quick_design_dir(tmp_path_factory, request):
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             if not done.exists():
-                assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+                design(out)
                 done.touch()
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
