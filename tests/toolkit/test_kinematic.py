@@ -70,24 +70,26 @@ def test_the_kinematic_path_stays_out_of_linear_driving():
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)
 
 
-def test_a_slide_on_mu_0_5_is_followed_with_a_wrong_model():
-    # the Vanagon slides to 21 deg on mu 0.5 and recovers; dakf designed from the +40 % stiffness,
-    # +10 % inertia file: within 1 deg RMS (measured 0.46, 1.02 max) and |error| < 3 beta_std on 99 % of
-    # the samples (measured 100 %); the same filter without the path is several degrees off there
-    # (measured 13.3: its model says the tyres give what they do not, and the course fixes are gated)
-    p = load_vehicle("commonroad-3")
-    man = sine_with_dwell(80 / 3.6, SLIDE_HAND_WHEEL_DEG[3] * DEG / p.steering_ratio, start=2.0, after=8.0)
-    log = simulate(p, "commonroad-mb:3", man, disturbances=Disturbances(friction=Friction(mu=0.5)), sensors=SENS,
-                   seed=3).log_columns()
+@pytest.mark.parametrize("n,peak_min,linear_min", [(3, 15.0, 5.0), (2, 12.0, 3.0)])
+def test_a_slide_on_mu_0_5_is_followed_with_a_wrong_model(n, peak_min, linear_min):
+    # the Vanagon (set 3) slides to 21 deg on mu 0.5 and recovers, the BMW (set 2) to 14 deg; dakf designed
+    # from the +40 % stiffness, +10 % inertia file: within 1 deg RMS (measured 0.44 / 1.00 max on the
+    # Vanagon, 0.20 / 0.49 on the BMW) and |error| < 3 beta_std on 99 % of the samples (measured 100 % on
+    # both); the same filter without the path is degrees off there (measured 13.3 and 4.2: its model says
+    # the tyres give what they do not, and the course fixes are gated)
+    p = load_vehicle(f"commonroad-{n}")
+    man = sine_with_dwell(80 / 3.6, SLIDE_HAND_WHEEL_DEG[n] * DEG / p.steering_ratio, start=2.0, after=8.0)
+    log = simulate(p, f"commonroad-mb:{n}", man, disturbances=Disturbances(friction=Friction(mu=0.5)),
+                   sensors=SENS, seed=n).log_columns()
     sel = log["t"] >= 1.0
-    assert np.degrees(np.abs(log["beta_true"]).max()) > 15.0
+    assert np.degrees(np.abs(log["beta_true"]).max()) > peak_min
     d = design_filter("dakf", wrong(p), nominal=False)
     est = run_estimator(d, log)
     err = (est["beta"] - log["beta_true"])[sel]
     assert np.degrees(np.sqrt(np.mean(err ** 2))) <= 1.0
     assert np.mean(np.abs(err) < 3 * est["beta_std"][sel]) >= 0.99
     lin = run_estimator(dataclasses.replace(d, kinematic=False), log)
-    assert np.degrees(np.sqrt(np.mean(((lin["beta"] - log["beta_true"])[sel]) ** 2))) > 5.0
+    assert np.degrees(np.sqrt(np.mean(((lin["beta"] - log["beta_true"])[sel]) ** 2))) > linear_min
 
 
 def test_a_delayed_fix_does_not_engage_the_kinematic_path():
