@@ -92,29 +92,41 @@ double yardstick_ns(long n, int repeats, double *sink)
 
 
 @functools.lru_cache(maxsize=None)
+def yardstick_pass():
+    """A callable ``f(n)``: one timed run of ``n`` yardstick steps, ns per step (the library compiled once
+    per process); None without a C compiler. Benchmarks that time the yardstick beside their own code,
+    in alternating passes, use it."""
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        return None
+    tmp = tempfile.mkdtemp(prefix="evstab_yardstick_")
+    src, lib = Path(tmp) / "yardstick.c", Path(tmp) / "yardstick.so"
+    src.write_text(_SRC)
+    subprocess.run([cc, "-std=c99", "-O2", "-shared", "-fPIC", "-o", str(lib), str(src)], check=True,
+                   capture_output=True)
+    dll = ctypes.CDLL(str(lib))
+    shutil.rmtree(tmp, ignore_errors=True)  # the loaded library stays mapped
+    dll.yardstick_ns.restype = ctypes.c_double
+    dll.yardstick_ns.argtypes = [ctypes.c_long, ctypes.c_int, ctypes.POINTER(ctypes.c_double)]
+    sink = ctypes.c_double(0.0)
+    return lambda n: float(dll.yardstick_ns(n, 1, ctypes.byref(sink)))
+
+
+@functools.lru_cache(maxsize=None)
 def yardstick_ns(n: int = 200_000, repeats: int = 25, pause: float = 0.02) -> float | None:
     """ns per step of the hand-written C Kalman step, measured once per process (the printed line and
     the written table carry the same figure): the best of ``repeats`` runs of ``n`` steps with
     ``pause`` seconds between them. On this shared 2-core machine single runs range over 2x
     (106-216 ns in 30 runs, the slow ones in spells of a quarter of a second or more), so the runs
     are spread over about a second; the best is the machine's undisturbed speed."""
-    cc = shutil.which("gcc") or shutil.which("cc")
-    if cc is None:
+    one = yardstick_pass()
+    if one is None:
         return None
-    with tempfile.TemporaryDirectory() as tmp:
-        src, lib = Path(tmp) / "yardstick.c", Path(tmp) / "yardstick.so"
-        src.write_text(_SRC)
-        subprocess.run([cc, "-std=c99", "-O2", "-shared", "-fPIC", "-o", str(lib), str(src)], check=True,
-                       capture_output=True)
-        dll = ctypes.CDLL(str(lib))
-        dll.yardstick_ns.restype = ctypes.c_double
-        dll.yardstick_ns.argtypes = [ctypes.c_long, ctypes.c_int, ctypes.POINTER(ctypes.c_double)]
-        sink = ctypes.c_double(0.0)
-        best = float("inf")
-        for _ in range(repeats):
-            best = min(best, float(dll.yardstick_ns(n, 1, ctypes.byref(sink))))
-            time.sleep(pause)
-        return best
+    best = float("inf")
+    for _ in range(repeats):
+        best = min(best, one(n))
+        time.sleep(pause)
+    return best
 
 
 def yardstick_line(per_step_ns: float, what: str, y: float | None = None) -> str:
