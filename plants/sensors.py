@@ -128,25 +128,20 @@ def noise_rows(seed: int, n: int, streams: tuple[str, ...]) -> np.ndarray:
     unknown = [s for s in streams if s not in STREAM_ROWS]
     if unknown:
         raise ModelError(f"unknown noise stream(s) {', '.join(unknown)}; known: {', '.join(STREAMS)}")
-    children = np.random.SeedSequence(seed).spawn(len(STREAMS))
+    rng = _streams(seed)
     out = np.empty((sum(STREAM_ROWS[s] for s in streams), n))
     r = 0
     for name in streams:
         k = STREAM_ROWS[name]
-        rng = np.random.default_rng(children[STREAMS.index(name)])
-        rng.standard_normal(out=out[r] if k == 1 else out[r:r + k])  # shape (n) or (k, n), as draw_noise draws
+        rng[name].standard_normal(out=out[r] if k == 1 else out[r:r + k])  # shape (n) or (k, n), as draw_noise draws
         r += k
     return out
 
 
 def draw_noise(cfg: SensorConfig, seed: int, n: int) -> dict:
     """All noise of a run of ``n`` samples, drawn once (one stream per sensor)."""
-    rng = _streams(seed)
-    return {"steer": rng["steer"].standard_normal(n), "gyro": rng["gyro"].standard_normal(n),
-            "roll_gyro": rng["roll_gyro"].standard_normal(n), "accel": rng["accel"].standard_normal((2, n)),
-            "wheel": rng["wheel"].standard_normal((4, n)), "speed": rng["speed"].standard_normal(n),
-            "gps": rng["gps"].standard_normal((2, n)), "heading": rng["heading"].standard_normal(n),
-            "gps_roll": rng["gps_roll"].standard_normal(n)}
+    return {name: g.standard_normal(n if STREAM_ROWS[name] == 1 else (STREAM_ROWS[name], n))
+            for name, g in _streams(seed).items()}
 
 
 def readings(tr: dict, inp: dict, nz: dict, gps: tuple, fix, cfg: SensorConfig, wheel_radius: float | None,
