@@ -47,6 +47,25 @@ def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):
     return time.perf_counter() - t0, resp
 
 
+def plant_alone(spec, prog, U, z0, pv, Y, one_yardstick) -> dict | None:
+    """The run's plant part alone (:mod:`_plant`: the plant's lane kernel fed what the loop applied),
+    the loop and the yardstick timed in 15 alternating passes: the best seconds per step of the plant
+    and the loop, the yardstick's ns per step, and the largest difference of the plant's truth from
+    the loop's. None without a C compiler or a lane kernel."""
+    import _plant
+    kernel = _plant.plant_kernel(spec)
+    if kernel is None or prog.lanes is None or one_yardstick is None:
+        return None
+    _, E = prog.run(U, z0, pv, prog.theta())
+    u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
+    x0 = z0[None, spec.state_layout.slot("plant")].copy()
+    n = len(Y)
+    best = _plant.best_alternating({"loop": lambda: prog.run(U, z0, pv, prog.theta()),
+                                    "plant": lambda: kernel(x0, [u, pv[None]], n),
+                                    "yardstick": lambda: one_yardstick(200_000)}, rounds=15)
+    return {"loop": best["loop"] / n, "plant": best["plant"] / n, "y": best["yardstick"], "diff": diff}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref-seconds", type=float, default=0.5)
@@ -73,6 +92,7 @@ def main(argv=None):
         time.sleep(0.02)
     y = None if one_yardstick is None else y_best
     n = len(Y)
+    plant = plant_alone(spec, prog, U, z0, pv, Y, one_yardstick)
     t_ref, resp = python_control_loop(spec, p, U, z0, prog.theta(), args.ref_seconds)
     m = resp.outputs.shape[1]
     diff = np.abs(resp.outputs[TRUTH.index("yaw_rate")] - Y[:m, TRUTH.index("yaw_rate")]).max()
@@ -100,6 +120,12 @@ def main(argv=None):
           f"= {per_c / per_lin:.2f})")
     from _yardstick import yardstick_line
     print(yardstick_line(per_c * 1e9, "closed loop per step", y) + " (timed in alternating runs)")
+    if plant is not None:
+        print(f"its two-track plant alone (RK4 and the output equation, retracing the run's truth to "
+              f"{plant['diff']:.0e}), timed alternately with the loop and the yardstick: {plant['plant'] * 1e6:.2f} "
+              f"us per step = {plant['plant'] * 1e9 / plant['y']:.1f}x the yardstick ({plant['y']:.0f} ns), the loop "
+              f"{plant['loop'] * 1e6:.2f} us = {plant['loop'] * 1e9 / plant['y']:.1f}x (target for the whole loop "
+              f"5.3x); the plant is {100 * plant['plant'] / plant['loop']:.0f} % of the loop step")
     if args.md:
         from pathlib import Path
         from evstab.studies._common import write_markdown
@@ -111,7 +137,13 @@ def main(argv=None):
             [f"python-control linear `ss` of the same loop ({k}-state core), `initial_response`",
              f"{per_lin * n * 1e3:.1f} ms", f"{per_lin * 1e6:.2f} us", f"{per_lin / per_c:.2f}"],
             ["yardstick: hand-written dense 5-state Kalman step in C, gcc -O2, timed in alternating runs", "",
-             "-" if y is None else f"{y:.0f} ns", "-" if y is None else f"loop step = {per_c * 1e9 / y:.1f}x it"]])
+             "-" if y is None else f"{y:.0f} ns", "-" if y is None else f"loop step = {per_c * 1e9 / y:.1f}x it"],
+            *([] if plant is None else [
+                [f"the loop's two-track plant alone (RK4 and the output equation, the run's truth to "
+                 f"{plant['diff']:.0e}), timed alternately with the loop and the yardstick",
+                 f"{plant['plant'] * n * 1e3:.1f} ms", f"{plant['plant'] * 1e6:.2f} us",
+                 f"{plant['plant'] * 1e9 / plant['y']:.1f}x the yardstick ({plant['y']:.0f} ns; the loop "
+                 f"{plant['loop'] * 1e9 / plant['y']:.1f}x in the same passes)"]])])
 
 
 if __name__ == "__main__":

@@ -52,6 +52,43 @@ def python_loop_case(cfg: sw.SweepConfig, case: sw.Case) -> float:
     return float(np.mean(costs))
 
 
+def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
+    """One block of cases (four vectors of the lane width, the first manoeuvre) in this process: the
+    loop's lane kernel, the plant's part of it alone (:mod:`_plant`, retracing the block's
+    runs) and the yardstick, timed in alternating passes; ns per case and step (the yardstick: per
+    step), and the largest difference of the plant kernel's truth from the loop's. None without a C
+    compiler."""
+    import _plant
+    from _yardstick import yardstick_pass
+    from evstab.toolkit.closed_loop import samples
+    from evstab.toolkit.lanes import native_width
+    prog = program(cfg.spec())
+    kernel, one_yardstick = _plant.plant_kernel(prog.spec), yardstick_pass()
+    if prog.lanes is None or kernel is None or one_yardstick is None:
+        return None
+    block = cases[:4 * native_width()]
+    setup = [sw.case_setup(cfg, c) for c in block]
+    n = samples(prog.spec, setup[0][3][0])
+    U = np.empty((len(block), n, prog.nin))
+    z0, pv = [], []
+    for q, (true, sens, dist, mans) in enumerate(setup):
+        _, z, p = prog.inputs(true, mans[0], dist, sens, block[q].seed, out=U[q])
+        z0.append(z)
+        pv.append(p)
+    z0, pv = np.array(z0), np.array(pv)
+    theta = np.array([prog.theta(**sw.PAPER.calibration(), gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error,
+                                 mu_assumed=cfg.base_design().mu_max) for c in block])
+    Y, E = prog.run_batch(U, z0, pv, theta)
+    u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)
+    x0 = z0[:, prog.spec.state_layout.slot("plant")].copy()
+    best = _plant.best_alternating({"loop": lambda: prog.lanes(z0, [U, pv, theta], n, keep=(1, 2)),
+                                    "plant": lambda: kernel(x0, [u, pv], n),
+                                    "yardstick": lambda: one_yardstick(200_000)})
+    per = len(block) * n
+    return {"loop": best["loop"] / per * 1e9, "plant": best["plant"] / per * 1e9, "y": best["yardstick"],
+            "diff": diff, "cases": len(block), "seconds": n * cfg.dt}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=1000)
@@ -81,6 +118,17 @@ def main() -> None:
     child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest worker
     print(f"peak resident memory: {own:.0f} MiB in this process (the {len(rows)} summary rows), {child:.0f} MiB in "
           f"the largest worker (target < 2 GiB)")
+    shares = kernel_shares(cfg, cases)
+    worker = t_sweep * args.workers / steps * 1e9
+    if shares is not None:
+        k = shares
+        print(f"where a worker's time goes (one process, one block of {k['cases']} cases x {k['seconds']:g} s, the "
+              f"kernels and the yardstick ({k['y']:.0f} ns) in alternating passes): the loop's lane kernel "
+              f"{k['loop']:.0f} ns per case and step = {k['loop'] / k['y']:.1f}x the yardstick; its {args.plant} plant "
+              f"alone (RK4 and the output equation, retracing the block's truth to {k['diff']:.0e}) {k['plant']:.0f} ns"
+              f" = {k['plant'] / k['y']:.1f}x, {100 * k['plant'] / k['loop']:.0f} % of the loop kernel; a sweep worker "
+              f"{worker:.0f} ns in all (the rest: the runs' inputs and noise, the summaries); the target is "
+              f"{2.1 * args.workers:.1f}x per worker")
     t0 = time.perf_counter()
     sw.run_sweep(cfg, cases[:50], [sw.PAPER], workers=args.workers, progress=False, batch=5)
     t_lin = time.perf_counter() - t0
@@ -104,6 +152,16 @@ def main() -> None:
                                        f"{args.workers} workers", "wall", "per loop step and case"], [
             ["compiled sweep (rollouts only)", f"{t_sweep:.1f} s", f"{per:.0f} ns"
              + ("" if y is None else f" ({per / y:.1f}x the C Kalman yardstick, {y:.0f} ns)")],
+            *([] if shares is None else [
+                [f"one process, one block of {shares['cases']} cases: the loop's lane kernel alone", "",
+                 f"{shares['loop']:.0f} ns ({shares['loop'] / shares['y']:.1f}x the yardstick timed beside it, "
+                 f"{shares['y']:.0f} ns)"],
+                [f"... its {args.plant} plant alone (RK4 and the output equation; the same truth to {shares['diff']:.0e})",
+                 "", f"{shares['plant']:.0f} ns ({shares['plant'] / shares['y']:.1f}x; "
+                     f"{100 * shares['plant'] / shares['loop']:.0f} % of the loop kernel)"],
+                ["a sweep worker in all (the kernel, the runs' inputs and noise, the summaries)", "",
+                 f"{worker:.0f} ns (" + ("" if y is None else f"{worker / y:.1f}x the yardstick; ")
+                 + f"target {2.1 * args.workers:.1f}x per worker)"]]),
             ["the first 50 cases with the linear multi-rate verdicts", f"{t_lin:.1f} s", ""],
             [f"plain Python loop (the simulator's numpy loop step; {args.ref_cases} cases measured, scaled)",
              f"{t_ref * args.cases:.0f} s", f"{t_ref / (2 * sw.MANEUVER_DURATION / cfg.dt) * 1e9 / 1e3:.0f} us "
