@@ -200,10 +200,12 @@ def _expr(nodes: list[_Node], n: int, name, sincos: dict) -> str:
 
 def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH) -> str:
     """C source of ``int fname(long n_steps, long n_cases, const double* z0, const double* const* in,
-    double* z_end, double* const* out)``: ``n_steps`` samples of ``fn`` for ``n_cases`` cases.
+    double* z_end, double* const* out, const long* st)``: ``n_steps`` samples of ``fn`` for ``n_cases`` cases.
 
-    Layouts (C order, float64): ``z0``/``z_end`` (cases, nz); ``in[i]`` for input ``i >= 1``:
-    (cases, n_steps, n_i) if stepped else (cases, n_i) (``in[0]`` unused); ``out[j]`` for output
+    Layouts (float64): ``z0``/``z_end`` (cases, nz), C order; ``in[i]`` for input ``i >= 1``:
+    (cases, n_steps, n_i) if stepped else (cases, n_i) (``in[0]`` unused), a stepped input with any
+    strides, ``st[3 i]``, ``st[3 i + 1]`` and ``st[3 i + 2]`` (in doubles) along its three axes, so that
+    its samples may lie signal by signal as well as sample by sample; ``out[j]`` for output
     ``j >= 1``: (cases, n_steps, m_j), or NULL (not stored). Cases go through in blocks of ``width`` lanes; a last, partial
     block repeats its last case in the spare lanes and stores only the real ones.
 
@@ -256,7 +258,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
             if src == 0:
                 body.append(f"const vd v{n} = zs[{el}];")
             elif src in stepped:
-                body.append(f"vd v{n}; for (int l = 0; l < EV_W; l++) v{n}[l] = rp{src}[l][{el}];")
+                body.append(f"vd v{n}; for (int l = 0; l < EV_W; l++) v{n}[l] = rp{src}[l][{el} * es{src}];")
             else:
                 hoisted.append(f"const vd h{n} = c{src}[{el}];")
             continue
@@ -283,7 +285,9 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
 
     lines = [MATH_C % {"width": width}, *(LANE_INTRINSICS[u] for u in sorted(used)),
              f"int {fname}(long n_steps, long n_cases, const double* z0, const double* const* in, double* z_end, "
-             f"double* const* out) {{",
+             f"double* const* out, const long* st) {{",
+             *(f"  const long cs{i} = st[{3 * i}], ks{i} = st[{3 * i + 1}], es{i} = st[{3 * i + 2}];"
+               for i in sorted(stepped)),
              "  for (long c0 = 0; c0 < n_cases; c0 += EV_W) {",
              "    int n_act = (int)(n_cases - c0 < EV_W ? n_cases - c0 : EV_W);",
              "    long cs[EV_W];",
@@ -298,9 +302,8 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
     lines.extend("    " + h for h in hoisted)
     lines.append("    for (long k = 0; k < n_steps; k++) {")
     for st in sorted(stepped):
-        m = fn.nnz_in(st)
         lines.append(f"      const double* rp{st}[EV_W];")
-        lines.append(f"      for (int l = 0; l < EV_W; l++) rp{st}[l] = in[{st}] + (cs[l] * n_steps + k) * {m};")
+        lines.append(f"      for (int l = 0; l < EV_W; l++) rp{st}[l] = in[{st}] + cs[l] * cs{st} + k * ks{st};")
     for j in range(1, n_out):
         m = fn.nnz_out(j)
         lines.append(f"      double* wp{j}[EV_W];")
@@ -357,7 +360,7 @@ class LaneRollout:
         self._f = getattr(self._lib, name)
         self._f.restype = ctypes.c_int
         self._f.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                            ctypes.c_void_p]
+                            ctypes.c_void_p, ctypes.c_void_p]
         self.n_in, self.n_out = fn.n_in(), fn.n_out()
         self.sizes_in = [fn.nnz_in(i) for i in range(self.n_in)]
         self.sizes_out = [fn.nnz_out(j) for j in range(self.n_out)]
@@ -367,14 +370,27 @@ class LaneRollout:
                  keep: tuple[int, ...] | None = None):
         """``z0`` (cases, nz); ``inputs`` for inputs 1.. (stepped: (cases, n_steps, n_i), else (cases, n_i));
         returns (z_end, [outputs 1..] as (cases, n_steps, m_j)), written into ``outputs`` when given.
-        ``keep``: the outputs (numbered from 1) to store; the others come back as None."""
+        ``keep``: the outputs (numbered from 1) to store; the others come back as None.
+
+        A stepped input is read where it lies, whatever its strides (a float64 array, aligned, with
+        strides >= 0): say the transposed view of a (cases, n_i, n_steps) array, each signal's samples
+        side by side, which is faster to fill signal by signal and no slower to read. Others are copied
+        to C order first."""
         z0 = np.ascontiguousarray(z0, dtype=float)
         n_cases = z0.shape[0]
         if z0.shape != (n_cases, self.sizes_in[0]):
             raise DataError(f"lane rollout: z0 must be (cases, {self.sizes_in[0]}), got {z0.shape}")
         arrs = [None]
+        strides = np.zeros(3 * self.n_in, dtype=np.int64)
         for i, a in enumerate(inputs, start=1):
-            a = np.ascontiguousarray(a, dtype=float)
+            a = np.asarray(a, dtype=float)
+            if i in self.stepped and a.ndim == 3 and a.flags.aligned and all(
+                    s >= 0 and s % 8 == 0 for s in a.strides):
+                strides[3 * i:3 * i + 3] = [s // 8 for s in a.strides]
+            else:
+                a = np.ascontiguousarray(a)
+                if a.ndim == 3:
+                    strides[3 * i:3 * i + 3] = [s // 8 for s in a.strides]
             want = (n_cases, n_steps, self.sizes_in[i]) if i in self.stepped else (n_cases, self.sizes_in[i])
             if a.shape != want:
                 raise DataError(f"lane rollout: input {i} must be {want}, got {a.shape}")
@@ -392,7 +408,8 @@ class LaneRollout:
         in_ptrs = (ctypes.c_void_p * self.n_in)(None, *[a.ctypes.data for a in arrs[1:]])
         out_ptrs = (ctypes.c_void_p * self.n_out)(None, *[None if a is None else a.ctypes.data for a in outputs])
         if n_cases and n_steps >= 0:
-            if self._f(n_steps, n_cases, z0.ctypes.data, in_ptrs, z_end.ctypes.data, out_ptrs) != 0:
+            if self._f(n_steps, n_cases, z0.ctypes.data, in_ptrs, z_end.ctypes.data, out_ptrs,
+                       strides.ctypes.data) != 0:
                 raise CompileError("lane rollout reported an error")
         else:
             z_end[:] = z0

@@ -323,7 +323,9 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
             for i, (_, _, _, mans) in enumerate(setup):
                 by_len.setdefault(samples(prog.spec, mans[m]), []).append(i)
             for n, idx in by_len.items():
-                U = _workspace("inputs", (len(idx), n, prog.nin))  # filled in place, case by case
+                # filled in place, case by case and signal by signal: each input signal's samples lie side
+                # by side (the lane kernel reads any strides), so that every write is contiguous
+                U = _workspace("inputs", (len(idx), prog.nin, n)).transpose(0, 2, 1)
                 z0, pv = [], []
                 for q, i in enumerate(idx):
                     true, sens, dist, mans = setup[i]

@@ -138,6 +138,33 @@ def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
         np.testing.assert_array_equal(Y, runs[0][1][0])
 
 
+def test_rollout_kernel_reads_a_stepped_input_where_it_lies(tmp_path):
+    # a stepped input of two signals given sample by sample (C order), signal by signal (the transposed
+    # view of a (cases, signals, samples) array, as the sweep fills it), as every other case of a larger
+    # array, and with a broadcast (zero-stride) signal: the same numbers read, so the same bits out
+    x, u, a = ca.SX.sym("x", 2), ca.SX.sym("u", 2), ca.SX.sym("a")
+    f = ca.Function("f", [x, u, a], [ca.vertcat(x[0] + 0.01 * (a * u[0] - x[1]), x[1] + 0.02 * u[1] * x[0]),
+                                     ca.vertcat(u[0] - 2 * u[1], x[0] * u[1])])
+    n_cases, n = 9, 200
+    r = np.random.default_rng(5)
+    U = r.normal(size=(n_cases, n, 2))
+    A, Z0 = r.uniform(0.5, 2.0, size=(n_cases, 1)), r.normal(size=(n_cases, 2))
+    k = _kernel(f, tmp_path)
+    z_ref, (Y_ref,) = k(Z0, [U, A], n)
+    signal_major = np.ascontiguousarray(U.transpose(0, 2, 1)).transpose(0, 2, 1)
+    every_other = np.repeat(U, 2, axis=0)[::2]
+    assert not signal_major.flags.c_contiguous and not every_other.flags.c_contiguous
+    for V in (signal_major, every_other):
+        z_end, (Y,) = k(Z0, [V, A], n)
+        np.testing.assert_array_equal(Y, Y_ref)
+        np.testing.assert_array_equal(z_end, z_ref)
+    held = np.broadcast_to(U[:, :1, :], U.shape)  # the first sample's inputs, held (stride 0 along time)
+    z_end, (Y,) = k(Z0, [held, A], n)
+    _, (Y_held,) = k(Z0, [np.ascontiguousarray(held), A], n)
+    np.testing.assert_array_equal(Y, Y_held)
+    assert not np.array_equal(Y, Y_ref)
+
+
 def test_native_width_is_a_lane_width_the_kernels_know():
     assert lanes.native_width() in (lanes.WIDTH, lanes.WIDE)
     assert cl.program(cl.loop_spec(load_vehicle("micro-ev"))).lanes.width == lanes.native_width()
