@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from evstab.plants import TRUTH, get_plant
+from evstab.plants import get_plant
 from evstab.plants.disturbances import DISTURBANCES
 from evstab.plants.model import COMMANDS
 from evstab.toolkit import closed_loop as cl, lanes as lanes_mod
@@ -70,13 +70,13 @@ def plant_inputs(spec: cl.LoopSpec, U: np.ndarray, z0: np.ndarray, E: np.ndarray
     return z0[:, spec.state_layout.slot("plant")].copy(), u
 
 
-def retrace(spec: cl.LoopSpec, kernel: lanes_mod.LaneRollout, U, z0, pv, E, Y) -> tuple[np.ndarray, float]:
-    """The plant kernel's inputs for loop runs (:func:`plant_inputs`), and the largest difference of its
-    truth from the loop's ``Y``: zero when the plant's part of the loop is what the kernel computes."""
+def retrace(spec: cl.LoopSpec, kernel: lanes_mod.LaneRollout, U, z0, pv, E, Y) -> tuple[np.ndarray, np.ndarray, float]:
+    """The plant kernel's inputs for loop runs (:func:`plant_inputs`: x0 and u), and the largest
+    difference of its truth from the loop's ``Y``: zero when the plant's part of the loop is what the
+    kernel computes."""
     x0, u = plant_inputs(spec, U, z0, E)
     _, (Yp,) = kernel(x0, [u, pv], U.shape[1])
-    assert Yp.shape[2] == len(TRUTH)
-    return u, float(np.max(np.abs(Yp - Y)))
+    return x0, u, float(np.max(np.abs(Yp - Y)))
 
 
 def best_alternating(runs: dict, rounds: int = 7, pause: float = 0.02) -> dict:

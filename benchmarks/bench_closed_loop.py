@@ -57,8 +57,7 @@ def plant_alone(spec, prog, U, z0, pv, Y, one_yardstick) -> dict | None:
     if kernel is None or prog.lanes is None or one_yardstick is None:
         return None
     _, E = prog.run(U, z0, pv, prog.theta())
-    u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
-    x0 = z0[None, spec.state_layout.slot("plant")].copy()
+    x0, u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
     n = len(Y)
     best = _plant.best_alternating({"loop": lambda: prog.run(U, z0, pv, prog.theta()),
                                     "plant": lambda: kernel(x0, [u, pv[None]], n),

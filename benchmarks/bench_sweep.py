@@ -79,8 +79,7 @@ def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
     theta = np.array([prog.theta(**sw.PAPER.calibration(), gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error,
                                  mu_assumed=cfg.base_design().mu_max) for c in block])
     Y, E = prog.run_batch(U, z0, pv, theta)
-    u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)
-    x0 = z0[:, prog.spec.state_layout.slot("plant")].copy()
+    x0, u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)
     best = _plant.best_alternating({"loop": lambda: prog.lanes(z0, [U, pv, theta], n, keep=(1, 2)),
                                     "plant": lambda: kernel(x0, [u, pv], n),
                                     "yardstick": lambda: one_yardstick(200_000)})

@@ -384,13 +384,10 @@ class LaneRollout:
         strides = np.zeros(3 * self.n_in, dtype=np.int64)
         for i, a in enumerate(inputs, start=1):
             a = np.asarray(a, dtype=float)
-            if i in self.stepped and a.ndim == 3 and a.flags.aligned and all(
-                    s >= 0 and s % 8 == 0 for s in a.strides):
-                strides[3 * i:3 * i + 3] = [s // 8 for s in a.strides]
-            else:
+            if i not in self.stepped or not (a.flags.aligned and all(s >= 0 and s % 8 == 0 for s in a.strides)):
                 a = np.ascontiguousarray(a)
-                if a.ndim == 3:
-                    strides[3 * i:3 * i + 3] = [s // 8 for s in a.strides]
+            if i in self.stepped and a.ndim == 3:
+                strides[3 * i:3 * i + 3] = [s // 8 for s in a.strides]
             want = (n_cases, n_steps, self.sizes_in[i]) if i in self.stepped else (n_cases, self.sizes_in[i])
             if a.shape != want:
                 raise DataError(f"lane rollout: input {i} must be {want}, got {a.shape}")
