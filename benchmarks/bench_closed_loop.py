@@ -47,8 +47,8 @@ def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):
     return time.perf_counter() - t0, resp
 
 
-def plant_alone(spec, prog, U, z0, pv, Y, one_yardstick) -> dict | None:
-    """The run's plant part alone (:mod:`_plant`: the plant's lane kernel fed what the loop applied),
+def plant_alone(spec, prog, U, z0, pv, Y, E, one_yardstick) -> dict | None:
+    """The run's plant part alone (:mod:`_plant`: the plant's lane kernel fed what the loop applied, ``E``),
     the loop and the yardstick timed in 15 alternating passes: the best seconds per step of the plant
     and the loop, the yardstick's ns per step, and the largest difference of the plant's truth from
     the loop's. None without a C compiler or a lane kernel."""
@@ -56,7 +56,6 @@ def plant_alone(spec, prog, U, z0, pv, Y, one_yardstick) -> dict | None:
     kernel = _plant.plant_kernel(spec)
     if kernel is None or prog.lanes is None or one_yardstick is None:
         return None
-    _, E = prog.run(U, z0, pv, prog.theta())
     x0, u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
     n = len(Y)
     best = _plant.best_alternating({"loop": lambda: prog.run(U, z0, pv, prog.theta()),
@@ -84,14 +83,14 @@ def main(argv=None):
     for _ in range(15):
         t0 = time.perf_counter()
         U, z0, pv = prog.inputs(p, man, dist, sens, 0)
-        Y, _ = prog.run(U, z0, pv, prog.theta())
+        Y, E = prog.run(U, z0, pv, prog.theta())
         best = min(best, time.perf_counter() - t0)
         if one_yardstick is not None:
             y_best = min(y_best, one_yardstick(200_000))
         time.sleep(0.02)
     y = None if one_yardstick is None else y_best
     n = len(Y)
-    plant = plant_alone(spec, prog, U, z0, pv, Y, one_yardstick)
+    plant = plant_alone(spec, prog, U, z0, pv, Y, E, one_yardstick)
     t_ref, resp = python_control_loop(spec, p, U, z0, prog.theta(), args.ref_seconds)
     m = resp.outputs.shape[1]
     diff = np.abs(resp.outputs[TRUTH.index("yaw_rate")] - Y[:m, TRUTH.index("yaw_rate")]).max()

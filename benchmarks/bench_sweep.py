@@ -76,8 +76,7 @@ def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
         z0.append(z)
         pv.append(p)
     z0, pv = np.array(z0), np.array(pv)
-    theta = np.array([prog.theta(**sw.PAPER.calibration(), gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error,
-                                 mu_assumed=cfg.base_design().mu_max) for c in block])
+    theta = sw.case_thetas(cfg, prog, sw.PAPER, block)
     Y, E = prog.run_batch(U, z0, pv, theta)
     x0, u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)
     best = _plant.best_alternating({"loop": lambda: prog.lanes(z0, [U, pv, theta], n, keep=(1, 2)),

@@ -301,19 +301,25 @@ def release_workspace() -> None:
     _WORKSPACE.__dict__.pop("arrays", None)
 
 
+def case_thetas(cfg: SweepConfig, prog, point: DesignPoint, cases: list[Case]) -> np.ndarray:
+    """The run-time parameters of ``cases`` under design ``point`` (cases x theta): the point's
+    calibration, each case's gyro errors, and the ECU not told the road (its mu input is the design's
+    "no road sensor" value)."""
+    mu_assumed = cfg.base_design().mu_max
+    return np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error,
+                                mu_assumed=mu_assumed) for c in cases])
+
+
 def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], linear: bool = True) -> list[dict]:
     """Rows for a batch of cases (the unit of work an executor runs), case by case and point by point
     as :func:`evaluate_case` orders them. The cases' rollouts of one manoeuvre and design point are one
     call of the compiled loop (:meth:`LoopProgram.run_batch`), in blocks of :data:`BLOCK` cases."""
     prog = program(cfg.spec())
-    mu_assumed, nz_max = cfg.base_design().mu_max, cfg.base_design().nz_max
+    nz_max = cfg.base_design().nz_max
     rows: dict[tuple[int, int], dict] = {}
     for s in range(0, len(cases), BLOCK):
         block = list(cases[s:s + BLOCK])
-        # the ECU is not told the road: its mu input is the design's "no road sensor" value
-        thetas = [np.array([prog.theta(**point.calibration(), gyro_bias=c.gyro_bias,
-                                       gyro_scale_error=c.gyro_scale_error, mu_assumed=mu_assumed) for c in block])
-                  for point in points]
+        thetas = [case_thetas(cfg, prog, point, block) for point in points]
         setup = [case_setup(cfg, c) for c in block]
         rollouts: list[list[list]] = [[[] for _ in block] for _ in points]
         # a case's runs of one length draw the same noise (its seed): drawn once, shared by its manoeuvres

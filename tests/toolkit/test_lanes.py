@@ -325,10 +325,11 @@ def test_the_benchmarks_plant_kernel_retraces_the_loops_truth():
     prog = cl.program(spec)
     U, z0, pv = prog.inputs(p, man, Disturbances(wind=default_wind(p)), sens, 0)
     Y, E = prog.run(U, z0, pv, prog.theta())
-    *_, diff = _plant.retrace(spec, _plant.plant_kernel(spec), U[None], z0[None], pv[None], E[None], Y[None])
+    kernel = _plant.plant_kernel(spec)
+    *_, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
     assert diff <= 1e-9
     # and it is not trivially so: a steer one period late gives another truth
     E2 = E.copy()
     E2[1:, cl.EXTRA.index("steer")] = E[:-1, cl.EXTRA.index("steer")]
-    *_, late = _plant.retrace(spec, _plant.plant_kernel(spec), U[None], z0[None], pv[None], E2[None], Y[None])
+    *_, late = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E2[None], Y[None])
     assert late > 1e-6
