@@ -14,6 +14,7 @@ import casadi as ca
 import numpy as np
 
 from evstab.plants import get_plant
+from evstab.plants.backend import call_nodes
 from evstab.plants.disturbances import DISTURBANCES
 from evstab.plants.model import COMMANDS
 from evstab.toolkit import closed_loop as cl, lanes as lanes_mod
@@ -28,6 +29,11 @@ def plant_step(spec: cl.LoopSpec) -> ca.Function:
     """``(x, u, p) -> (x_next, truth)``: the plant's part of one loop sample, ``u`` = (commands of the
     last period, commands of this one, disturbances), each per :data:`plants.model.COMMANDS` and
     :data:`plants.disturbances.DISTURBANCES`."""
+    with call_nodes():  # as the loop's lane kernel is traced (toolkit.closed_loop._lane_step): the tyre table
+        return _plant_step(spec)
+
+
+def _plant_step(spec: cl.LoopSpec) -> ca.Function:
     model = get_plant(spec.plant)
     nc, nw = COMMANDS.size, DISTURBANCES.size
     x = ca.SX.sym("x", len(model.states))

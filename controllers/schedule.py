@@ -15,7 +15,7 @@ rounding; ``a12 = -1 + c x^2`` and the reference gains carry the interpolation e
 With numbers the segment is looked up (the exported C does the same); with casadi
 symbols the same interpolation is written as a sum over the grid's hat functions,
 ``w_i = max(0, min((x - x_{i-1}) / (x_i - x_{i-1}), (x_{i+1} - x) / (x_{i+1} - x_i)))``.
-Traced inside :func:`as_call_nodes`, the sums go into one casadi function per table that the
+Traced inside :func:`plants.backend.call_nodes`, the sums go into one casadi function per table that the
 trace calls (a ``never_inline`` call node), which a lane kernel (:mod:`toolkit.lanes`) runs
 as the segment lookup, the firmware's arithmetic, instead of the 32-term sums; elsewhere
 (differentiation, casadi's code generation) they stay inline. Any strictly increasing axis
@@ -31,14 +31,13 @@ same arithmetic.
 from __future__ import annotations
 
 import hashlib
-from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from evstab.plants import VehicleParams
-from evstab.plants.backend import LANE_INTRINSICS, NUMPY
+from evstab.plants.backend import LANE_INTRINSICS, NUMPY, tracing_call_nodes
 from evstab.plants.bicycle import lateral_coefficients, steady_state_gains
 from evstab.plants.errors import ModelError
 
@@ -93,7 +92,7 @@ class SpeedTable:
             t = (x - ax[i]) / (ax[i + 1] - ax[i])
             tab = np.asarray(self.table)
             return tuple(tab[r, i] + t * (tab[r, i + 1] - tab[r, i]) for r in range(len(self.table)))
-        if not _CALL_NODES:
+        if not tracing_call_nodes():
             return self._hat_sums(v, o)
         out = _casadi_function(self)(v)
         return tuple(out[r] for r in range(len(self.table)))
@@ -195,20 +194,6 @@ class SpeedSchedule(SpeedTable):
             raise ModelError(f"speed schedule: missing field {e}") from None
         except (TypeError, ValueError) as e:
             raise ModelError(f"speed schedule: {e}") from None
-
-
-_CALL_NODES = False
-
-
-@contextmanager
-def as_call_nodes():
-    """Within: casadi reads of a schedule are call nodes of its table function (for lane kernels)."""
-    global _CALL_NODES
-    old, _CALL_NODES = _CALL_NODES, True
-    try:
-        yield
-    finally:
-        _CALL_NODES = old
 
 
 @lru_cache(maxsize=64)

@@ -9,6 +9,7 @@ code generation share one definition.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import casadi as ca
@@ -22,6 +23,25 @@ LANE_INTRINSICS: dict[str, str] = {}
 name -> C text defining ``EV_INLINE void <name>(const vd* in, vd* out)`` on lane vectors. A lane
 kernel (:mod:`toolkit.lanes`) runs it in place of the call; casadi's own C and virtual machine
 evaluate the function's body."""
+
+_CALL_NODES = [False]
+
+
+@contextmanager
+def call_nodes():
+    """Within: what has a lane-kernel form (:data:`LANE_INTRINSICS`) is traced as a call node of its
+    casadi function (a speed schedule's read, the tyre's shape function); elsewhere (differentiation,
+    casadi's code generation) the same quantity is traced inline."""
+    old, _CALL_NODES[0] = _CALL_NODES[0], True
+    try:
+        yield
+    finally:
+        _CALL_NODES[0] = old
+
+
+def tracing_call_nodes() -> bool:
+    """Whether a trace is inside :func:`call_nodes`."""
+    return _CALL_NODES[0]
 
 
 def is_symbolic(*values) -> bool:

@@ -42,7 +42,7 @@ from evstab.controllers.actuators import (OUTPUTS as ACT_OUTPUTS, SIGNALS as ACT
 from evstab.controllers.baselines import STATE as YAW_PI_STATE
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
-from evstab.plants.backend import CASADI, NUMPY
+from evstab.plants.backend import CASADI, NUMPY, call_nodes
 from evstab.plants.disturbances import Disturbances, disturbance_profile
 from evstab.plants.maneuvers import Maneuver
 from evstab.plants.sensors import SensorConfig, gps_fix_mask, noise_rows, readings
@@ -310,9 +310,9 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
 
 
 def _lane_step(spec: LoopSpec):
-    """The step traced for a lane kernel: schedule reads as call nodes (:func:`controllers.schedule.as_call_nodes`)."""
-    from evstab.controllers.schedule import as_call_nodes
-    with as_call_nodes():
+    """The step traced for a lane kernel: schedule reads and the tyres' shape function as call nodes
+    (:func:`plants.backend.call_nodes`), which the kernel runs as table lookups."""
+    with call_nodes():
         return _build(spec, chunk=False)[0]
 
 

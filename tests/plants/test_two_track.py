@@ -56,6 +56,60 @@ def test_magic_formula_peak_and_unit_slope():
     assert magic_formula_normalised(np.array(1e9), c, e, NUMPY) == pytest.approx(np.sin(c * np.pi / 2), abs=1e-6)
 
 
+def test_tyre_shape_table_is_the_formula():
+    """The tabulated ``F(u) / u`` (plants.tires.ShapeTable) against the formula it tabulates."""
+    from evstab.plants.errors import ModelError
+    from evstab.plants.tires import TABLE_CURVATURE, TABLE_SHAPE, ShapeTable, _grid_derivatives, shape_table
+    t = shape_table()
+    c, e, n = TABLE_SHAPE, TABLE_CURVATURE, t.segments
+    # exact at the grid points: each segment starts at the formula's value at w = i / n (its u = (1 - w) / w
+    # rounded: 2 units in the last place), and ends where the next starts (5 units: 3 roundings of its sum)
+    w = np.arange(1, n) / n
+    u = (1.0 - w) / w
+    exact = magic_formula_normalised(u, c, e, NUMPY) / u
+    assert np.max(np.abs(t.coeffs[1:, 0] - exact) / np.spacing(exact)) <= 2
+    ends = t.coeffs[:-1].sum(axis=1)
+    assert np.max(np.abs(ends - t.coeffs[1:, 0]) / np.spacing(1.0)) <= 5
+    # between them: measured 8.9e-16 in G (at most 1) and 3.0e-15 relative in the force, on 2e5 points in w
+    # and 2e5 in u from 1e-9 to 1e9; the formula's own rounding is 2-4 units (4.4e-16)
+    err = t.max_error()
+    assert err["G_abs"] < 2e-15 and err["F_rel"] < 5e-15
+    # the ends in closed form: G(0) = 1 (F' (0) = 1), and G -> sin(C pi/2) / u as u -> infinity
+    assert t.ratio(0.0) == pytest.approx(1.0, abs=1e-15)
+    assert t.ratio(1e12) * 1e12 == pytest.approx(np.sin(c * np.pi / 2), rel=1e-9)
+    # the grid derivatives: the two exact forms (u <= 1 and u >= 1) agree where both hold (to their change
+    # over 2e-9 of w), and at u = 0 (w = 1) the series F = u + f3 u^3 gives d2G/dw2 = 2 f3 = F'''(0) / 3,
+    # against casadi's third derivative of the formula at 0
+    import casadi as ca
+    from evstab.plants.backend import CASADI
+    w = np.array([0.3, 0.5 - 1e-9, 0.5 + 1e-9, 0.7, 1.0])
+    val, dg, ddg = _grid_derivatives(c, e, w)
+    assert val[1] == pytest.approx(val[2], rel=1e-8) and dg[1] == pytest.approx(dg[2], rel=1e-7)
+    assert ddg[1] == pytest.approx(ddg[2], rel=1e-6)
+    us = ca.SX.sym("u")
+    d3 = ca.jacobian(ca.jacobian(ca.jacobian(magic_formula_normalised(us, c, e, CASADI), us), us), us)
+    assert (val[4], dg[4]) == (1.0, 0.0)
+    assert ddg[4] == pytest.approx(float(ca.Function("d3", [us], [d3])(0.0)) / 3.0, rel=1e-12)
+    h = 1e-5  # central differences of the formula in w: the first two derivatives at w = 0.3 and 0.7
+    for k in (0, 3):  # w 0.3 and 0.7
+        g = [magic_formula_normalised(np.array((1 - x) / x), c, e, NUMPY) / ((1 - x) / x)
+             for x in (w[k] - h, w[k], w[k] + h)]
+        assert dg[k] == pytest.approx((g[2] - g[0]) / (2 * h), rel=1e-8)
+        assert ddg[k] == pytest.approx((g[2] - 2 * g[1] + g[0]) / h ** 2, rel=1e-4)
+    # the numpy forces read the table for the table's shape and curvature and the formula for others
+    k_, ta = np.linspace(-0.2, 0.2, 41), np.linspace(0.3, -0.3, 41)
+    args = (4000.0, 3500.0, 0.9, 52000.0, 80000.0)
+    ux, uy = args[4] * k_ / (args[2] * args[1]), args[3] * ta / (args[2] * args[1])
+    uu = np.sqrt(ux * ux + uy * uy + 1e-18)
+    fx, _ = combined_forces(k_, ta, *args, c, e, NUMPY)
+    np.testing.assert_array_equal(fx, args[2] * args[0] * t.ratio(uu) * ux)
+    fx, _ = combined_forces(k_, ta, *args, 1.6, 0.5, NUMPY)
+    np.testing.assert_array_equal(fx, args[2] * args[0] * magic_formula_normalised(uu, 1.6, 0.5, NUMPY) / uu * ux)
+    for bad in ((2.0, -2.0), (1.3, 1.0), (0.9, -2.0)):  # F(inf) = sin(C pi/2) must be > 0; E < 1
+        with pytest.raises(ModelError, match="shape table"):
+            ShapeTable(*bad)
+
+
 def test_combined_slip_costs_side_force_and_respects_friction_circle():
     fz, mu, ca_, ck = 4000.0, 1.0, 50000.0, 90000.0
     kappas = np.linspace(0, 0.3, 31)

@@ -271,12 +271,13 @@ def test_schedule_in_a_lane_kernel_is_the_firmwares_table_lookup(tmp_path):
     """A schedule read traced for a lane kernel is a call node; the kernel runs the segment lookup in its place,
     the numpy branch's (and the exported C's) arithmetic bit for bit, where casadi evaluates the
     hat-function sums, equal to rounding."""
-    from evstab.controllers.schedule import ROWS, SpeedSchedule, as_call_nodes
+    from evstab.controllers.schedule import ROWS, SpeedSchedule
+    from evstab.plants.backend import call_nodes
     s = SpeedSchedule.build(load_vehicle("compact-ev"))
     z, v = ca.SX.sym("z"), ca.SX.sym("v")
     inline = ca.vertcat(*s.values(v, cl.CASADI))
     assert not ca.Function("h", [v], [inline]).has_free() and ca.depends_on(inline, v)
-    with as_call_nodes():
+    with call_nodes():
         rows = ca.vertcat(*s.values(v, cl.CASADI))
     f = ca.Function("f", [z, v], [z, rows])
     assert any(f.instruction_id(k) == ca.OP_CALL for k in range(f.n_instructions()))
@@ -291,6 +292,56 @@ def test_schedule_in_a_lane_kernel_is_the_firmwares_table_lookup(tmp_path):
     hat = np.array(ca.Function("g", [v], [inline]).map(int(ok.sum()))(speeds[ok][None, :])).T
     np.testing.assert_allclose(R[0][ok], hat, rtol=1e-13, atol=1e-13 * np.abs(np.asarray(s.table)).max())
     assert R.shape[2] == len(ROWS)
+
+
+def test_tyre_shape_in_a_lane_kernel_is_the_table(tmp_path):
+    """The tyre's shape function traced for a lane kernel is a call node; the kernel reads the table in its
+    place, the numpy branch's arithmetic bit for bit, where casadi evaluates the formula; a lane with
+    another shape or curvature evaluates the formula (the Cephes functions: within a few units in the
+    last place of casadi's, as test_vector_math_agrees_with_libm measures), whatever its neighbours."""
+    from evstab.plants.backend import CASADI, NUMPY, call_nodes
+    from evstab.plants.tires import TABLE_CURVATURE, TABLE_SHAPE, _casadi_function, combined_forces, shape_table
+
+    def _tyre_call(u, c, e):
+        return _casadi_function(shape_table())(ca.vertcat(u, c, e))
+    z, k, ta, c, e = (ca.SX.sym(n) for n in ("z", "k", "ta", "c", "e"))
+    args = (4000.0, 3500.0, 0.9, 52000.0, 80000.0)  # F_z, F_z0, mu, C_alpha, C_kappa of a car's tyre
+    inline = ca.vertcat(*combined_forces(k, ta, *args[:3], args[3], args[4], c, e, CASADI))
+    with call_nodes():
+        traced = ca.vertcat(*combined_forces(k, ta, *args[:3], args[3], args[4], c, e, CASADI))
+    u = ca.SX.sym("u")
+    with call_nodes():
+        ratio = _tyre_call(u, c, e)
+    f = ca.Function("f", [z, ca.vertcat(k, ta, c, e, u)], [z, ca.vertcat(traced, ratio)])
+    assert any(f.instruction_id(i) == ca.OP_CALL for i in range(f.n_instructions()))
+    assert not any(ca.Function("g", [k, ta, c, e], [inline]).instruction_id(i) == ca.OP_CALL
+                   for i in range(ca.Function("g", [k, ta, c, e], [inline]).n_instructions()))
+    rng = np.random.default_rng(5)
+    n = 4003
+    kappa = np.concatenate([rng.normal(0.0, 0.05, n - 3), [0.0, 1.0, -3.0]])
+    tan_a = np.concatenate([rng.normal(0.0, 0.1, n - 3), [0.0, 40.0, 0.0]])
+    shape = np.full(n, TABLE_SHAPE)
+    curv = np.full(n, TABLE_CURVATURE)
+    other = np.arange(n) % 5 == 3  # every fifth lane another tyre: lanes of either kind in most vectors
+    shape[other], curv[other] = 1.6, 0.5
+    slip = np.concatenate([np.geomspace(1e-9, 1e9, n - 4), [0.0, 2.0, np.inf, np.nan]])
+    U = np.stack([kappa, tan_a, shape, curv, slip], axis=-1)[None]
+    kern = _kernel(f, tmp_path, width=lanes.native_width(), flags=lanes.kernel_flags(lanes.native_width()))
+    _, (R,) = kern(np.zeros((1, 1)), [U], n)
+    mine = ~other
+    np.testing.assert_array_equal(R[0][mine, 2], shape_table().ratio(slip[mine]))  # NaN = NaN
+    fx, fy = combined_forces(kappa[mine], tan_a[mine], *args, TABLE_SHAPE, TABLE_CURVATURE, NUMPY)
+    scale = args[2] * args[0]  # the force's magnitude, mu F_z
+    # the kernel divides by a per-case constant as a product with its reciprocal (lanes._strength_reduce):
+    # a unit in the last place of the force, 5e-13 N
+    np.testing.assert_allclose(R[0][mine, :2], np.stack([fx, fy], axis=-1), rtol=0, atol=4e-16 * scale)
+    g = ca.Function("g", [ca.vertcat(k, ta, c, e)], [inline]).map(n)
+    formula = np.array(g(U[0, :, :4].T)).T
+    # the table is the formula to 3e-15 of the force (ShapeTable.max_error: F_rel), plus a unit in the last
+    # place of the products around it
+    np.testing.assert_allclose(R[0][mine, :2], formula[mine], rtol=5e-15, atol=1e-15 * scale)
+    np.testing.assert_allclose(R[0][other, :2], formula[other], rtol=0, atol=1e-15 * scale)
+    assert shape_table().name in lanes.rollout_source(f, "k", lanes.Roles(stepped=(1,)))
 
 
 def test_simulate_many_equals_simulate_run_by_run():
