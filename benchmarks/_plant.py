@@ -25,11 +25,15 @@ ROLES = lanes_mod.Roles(stepped=(1,))
 sample, the plant parameters per case."""
 
 
-def plant_step(spec: cl.LoopSpec) -> ca.Function:
+def plant_step(spec: cl.LoopSpec, table: bool = True) -> ca.Function:
     """``(x, u, p) -> (x_next, truth)``: the plant's part of one loop sample, ``u`` = (commands of the
     last period, commands of this one, disturbances), each per :data:`plants.model.COMMANDS` and
-    :data:`plants.disturbances.DISTURBANCES`."""
-    with call_nodes():  # as the loop's lane kernel is traced (toolkit.closed_loop._lane_step): the tyre table
+    :data:`plants.disturbances.DISTURBANCES`. Traced as the loop's lane kernel is
+    (:func:`toolkit.closed_loop._lane_step`: the tyres read their table); ``table=False`` evaluates the
+    Magic Formula instead (:func:`plants.tires.combined_forces` inline, 3e-15 from the table)."""
+    if not table:
+        return _plant_step(spec)
+    with call_nodes():
         return _plant_step(spec)
 
 
@@ -46,12 +50,13 @@ def _plant_step(spec: cl.LoopSpec) -> ca.Function:
     return ca.Function("plant_step", [x, u, pv], [x_next, y], ["x", "u", "p"], ["x_next", "truth"])
 
 
-def plant_kernel(spec: cl.LoopSpec) -> lanes_mod.LaneRollout | None:
+def plant_kernel(spec: cl.LoopSpec, table: bool = True) -> lanes_mod.LaneRollout | None:
     """The lane kernel of :func:`plant_step` at the loop's width and flags (None without a C compiler)."""
     width = lanes_mod.native_width()
     flags = lanes_mod.kernel_flags(width)
-    return lanes_mod.compile_rollout(lambda: plant_step(spec), cache_key(
-        "bench_plant", cl.traced(spec), width, flags, lanes_mod.machine_tag()), ROLES, flags=flags, width=width)
+    return lanes_mod.compile_rollout(lambda: plant_step(spec, table), cache_key(
+        "bench_plant", cl.traced(spec), table, width, flags, lanes_mod.machine_tag()), ROLES, flags=flags,
+        width=width)
 
 
 def plant_inputs(spec: cl.LoopSpec, U: np.ndarray, z0: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -49,19 +49,23 @@ def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):
 
 def plant_alone(spec, prog, U, z0, pv, Y, E, one_yardstick) -> dict | None:
     """The run's plant part alone (:mod:`_plant`: the plant's lane kernel fed what the loop applied, ``E``),
-    the loop and the yardstick timed in 15 alternating passes: the best seconds per step of the plant
-    and the loop, the yardstick's ns per step, and the largest difference of the plant's truth from
-    the loop's. None without a C compiler or a lane kernel."""
+    the same with the Magic Formula evaluated instead of the tyre table, the loop and the yardstick
+    timed in 15 alternating passes: the best seconds per step of the plants and the loop, the
+    yardstick's ns per step, and the largest difference of each plant's truth from the loop's. None
+    without a C compiler or a lane kernel."""
     import _plant
-    kernel = _plant.plant_kernel(spec)
-    if kernel is None or prog.lanes is None or one_yardstick is None:
+    kernel, formula = _plant.plant_kernel(spec), _plant.plant_kernel(spec, table=False)
+    if kernel is None or formula is None or prog.lanes is None or one_yardstick is None:
         return None
     x0, u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])
+    *_, diff_f = _plant.retrace(spec, formula, U[None], z0[None], pv[None], E[None], Y[None])
     n = len(Y)
     best = _plant.best_alternating({"loop": lambda: prog.run(U, z0, pv, prog.theta()),
                                     "plant": lambda: kernel(x0, [u, pv[None]], n),
+                                    "formula": lambda: formula(x0, [u, pv[None]], n),
                                     "yardstick": lambda: one_yardstick(200_000)}, rounds=15)
-    return {"loop": best["loop"] / n, "plant": best["plant"] / n, "y": best["yardstick"], "diff": diff}
+    return {"loop": best["loop"] / n, "plant": best["plant"] / n, "formula": best["formula"] / n,
+            "y": best["yardstick"], "diff": diff, "diff_formula": diff_f}
 
 
 def main(argv=None):
@@ -124,6 +128,10 @@ def main(argv=None):
               f"us per step = {plant['plant'] * 1e9 / plant['y']:.1f}x the yardstick ({plant['y']:.0f} ns), the loop "
               f"{plant['loop'] * 1e6:.2f} us = {plant['loop'] * 1e9 / plant['y']:.1f}x (target for the whole loop "
               f"5.3x); the plant is {100 * plant['plant'] / plant['loop']:.0f} % of the loop step")
+        print(f"the same plant with the tyres' Magic Formula evaluated instead of read from its table (the run's "
+              f"truth to {plant['diff_formula']:.0e}), in the same passes: {plant['formula'] * 1e6:.2f} us per step = "
+              f"{plant['formula'] * 1e9 / plant['y']:.1f}x the yardstick; the table saves "
+              f"{100 * (1 - plant['plant'] / plant['formula']):.0f} % of the plant")
     if args.md:
         from pathlib import Path
         from evstab.studies._common import write_markdown
@@ -141,7 +149,11 @@ def main(argv=None):
                  f"{plant['diff']:.0e}), timed alternately with the loop and the yardstick",
                  f"{plant['plant'] * n * 1e3:.1f} ms", f"{plant['plant'] * 1e6:.2f} us",
                  f"{plant['plant'] * 1e9 / plant['y']:.1f}x the yardstick ({plant['y']:.0f} ns; the loop "
-                 f"{plant['loop'] * 1e9 / plant['y']:.1f}x in the same passes)"]])])
+                 f"{plant['loop'] * 1e9 / plant['y']:.1f}x in the same passes)"],
+                [f"... the same plant with the tyres' Magic Formula evaluated, not read from its table (the run's "
+                 f"truth to {plant['diff_formula']:.0e}), in the same passes",
+                 f"{plant['formula'] * n * 1e3:.1f} ms", f"{plant['formula'] * 1e6:.2f} us",
+                 f"{plant['formula'] * 1e9 / plant['y']:.1f}x the yardstick"]])])
 
 
 if __name__ == "__main__":

@@ -70,7 +70,7 @@ def test_two_stage_and_double_layer_tables(tmp_path):
     rows = _rows(_run("estimation_004", tmp_path / "004") / "double_layer.csv")
     for r in rows:
         if r["manoeuvre"] == "sine lane change":  # seed 004 Fig. 9's manoeuvre: within 0.15 deg (its ~0.1),
-            # and better than the roll KF (measured 0.026-0.028 against 0.031-0.044)
+            # and better than the roll KF (measured 0.029-0.031 against 0.031-0.044)
             assert float(r["roll_err_layer2_deg"]) < min(0.15, float(r["roll_err_roll_kf_deg"])), r
         else:  # sustained cornering with micro-ev's 43 % stiffness error in layer 1: within 0.35 deg
             # (measured 0.17 and 0.32 against the roll KF's 0.22 and 0.32)
@@ -157,7 +157,7 @@ def test_estimation_consistency_table(tmp_path):
     # quick: compact-ev only. What docs/estimators.md says of the default noise: on evstab's own logs
     # the course innovations are as large as the filter predicts (mean NIS inside its 95 % interval:
     # measured 0.74-0.91 on compact-ev, 0.74-1.10 on all six cars), and the sideslip error is small
-    # (0.15 deg: four times the largest measured RMS on compact-ev, 0.035)
+    # (0.15 deg: eight times the largest measured RMS on compact-ev, 0.019)
     rows = _rows(_run("estimation_consistency", tmp_path) / "consistency.csv")
     assert len(rows) == 6
     for r in rows:
