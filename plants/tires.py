@@ -30,8 +30,8 @@ The shape function is evaluated from a table where it is hot (:class:`ShapeTable
 default shape and curvature, numbers and lane kernels (:mod:`toolkit.lanes`) read ``F(u) / u`` from
 quintic Hermite segments on ``w = 1 / (1 + u)`` (512 of them, exact values and first two
 derivatives at the grid points), one division and a degree-5 polynomial in place of two
-arc tangents, a sine and a division. It equals the formula to within a few units in the last
-place (:meth:`ShapeTable.max_error`); casadi's inline expressions (differentiation, casadi's code
+arc tangents, a sine and a division. It equals the formula to 9e-16 in ``F / u`` and 3e-15
+relative in the force (:meth:`ShapeTable.max_error`); casadi's inline expressions (differentiation, casadi's code
 generation) keep the formula, and any other shape or curvature is evaluated from it.
 """
 
@@ -42,7 +42,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .backend import LANE_INTRINSICS, NUMPY, tracing_call_nodes
+from .backend import CASADI, LANE_INTRINSICS, NUMPY, tracing_call_nodes
 from .errors import ModelError
 
 EPS_SLIP = 1e-9
@@ -187,8 +187,7 @@ def _grid_derivatives(shape: float, curvature: float, w: np.ndarray) -> np.ndarr
     c, e, b = shape, curvature, 1.0 / shape
     ws = ca.SX.sym("w")
     u = (1.0 - ws) / ws
-    bu = b * u
-    small = ca.sin(c * ca.atan(bu - e * (bu - ca.atan(bu)))) / u
+    small = magic_formula_normalised(u, c, e, CASADI) / u
     z = ws / (1.0 - ws)
     large = z * ca.sin(c * (np.pi / 2 - ca.atan(z / ((1.0 - e) * b + e * z * (np.pi / 2 - ca.atan(c * z))))))
     out = np.empty((len(w), 3))
@@ -218,18 +217,15 @@ def _casadi_function(table: ShapeTable):
     table's."""
     import casadi as ca
     v = ca.SX.sym("v", 3)
-    u, c, e = v[0], v[1], v[2]
-    bu = (1.0 / c) * u
-    return ca.Function(table.name, [v], [ca.sin(c * ca.atan(bu - e * (bu - ca.atan(bu)))) / u], ["v"], ["ratio"],
+    u = v[0]
+    return ca.Function(table.name, [v], [magic_formula_normalised(u, v[1], v[2], CASADI) / u], ["v"], ["ratio"],
                        {"never_inline": True})
 
 
 def peak_normalised_slip(shape: float, curvature: float) -> float:
     """The normalised slip ``u`` at which ``F(u)`` peaks (numerically)."""
-    import numpy as np
     from scipy.optimize import minimize_scalar
 
-    from .backend import NUMPY
     res = minimize_scalar(lambda u: -magic_formula_normalised(np.array(u), shape, curvature, NUMPY),
                           bounds=(1e-3, 100.0), method="bounded", options={"xatol": 1e-10})
     return float(res.x)
