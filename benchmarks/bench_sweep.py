@@ -55,7 +55,8 @@ def python_loop_case(cfg: sw.SweepConfig, case: sw.Case) -> float:
 def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
     """One block of cases (four vectors of the lane width, the first manoeuvre) in this process: the
     loop's lane kernel, the plant's part of it alone (:mod:`_plant`, retracing the block's
-    runs) and the yardstick, timed in alternating passes; ns per case and step (the yardstick: per
+    runs), for the two-track the same plant with its tyres' Magic Formula evaluated instead of read from
+    the table, and the yardstick, timed in alternating passes; ns per case and step (the yardstick: per
     step), and the largest difference of the plant kernel's truth from the loop's. None without a C
     compiler."""
     import _plant
@@ -79,11 +80,15 @@ def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
     theta = sw.case_thetas(cfg, prog, sw.PAPER, block)
     Y, E = prog.run_batch(U, z0, pv, theta)
     x0, u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)
-    best = _plant.best_alternating({"loop": lambda: prog.lanes(z0, [U, pv, theta], n, keep=(1, 2)),
-                                    "plant": lambda: kernel(x0, [u, pv], n),
-                                    "yardstick": lambda: one_yardstick(200_000)})
+    runs = {"loop": lambda: prog.lanes(z0, [U, pv, theta], n, keep=(1, 2)),
+            "plant": lambda: kernel(x0, [u, pv], n), "yardstick": lambda: one_yardstick(200_000)}
+    formula = _plant.plant_kernel(prog.spec, table=False) if cfg.plant == "two-track" else None
+    if formula is not None:
+        runs["formula"] = lambda: formula(x0, [u, pv], n)
+    best = _plant.best_alternating(runs)
     per = len(block) * n
     return {"loop": best["loop"] / per * 1e9, "plant": best["plant"] / per * 1e9, "y": best["yardstick"],
+            "formula": None if formula is None else best["formula"] / per * 1e9,
             "diff": diff, "cases": len(block), "seconds": n * cfg.dt}
 
 
@@ -127,6 +132,10 @@ def main() -> None:
               f" = {k['plant'] / k['y']:.1f}x, {100 * k['plant'] / k['loop']:.0f} % of the loop kernel; a sweep worker "
               f"{worker:.0f} ns in all (the rest: the runs' inputs and noise, the summaries); the target is "
               f"{2.1 * args.workers:.1f}x per worker")
+        if k["formula"] is not None:
+            print(f"the same plant with the tyres' Magic Formula evaluated instead of read from its table, in the same "
+                  f"passes: {k['formula']:.0f} ns = {k['formula'] / k['y']:.1f}x; the table saves "
+                  f"{100 * (1 - k['plant'] / k['formula']):.0f} % of the plant")
     t0 = time.perf_counter()
     sw.run_sweep(cfg, cases[:50], [sw.PAPER], workers=args.workers, progress=False, batch=5)
     t_lin = time.perf_counter() - t0
@@ -157,6 +166,9 @@ def main() -> None:
                 [f"... its {args.plant} plant alone (RK4 and the output equation; the same truth to {shares['diff']:.0e})",
                  "", f"{shares['plant']:.0f} ns ({shares['plant'] / shares['y']:.1f}x; "
                      f"{100 * shares['plant'] / shares['loop']:.0f} % of the loop kernel)"],
+                *([] if shares["formula"] is None else [
+                    ["... the same plant with the tyres' Magic Formula evaluated, not read from its table", "",
+                     f"{shares['formula']:.0f} ns ({shares['formula'] / shares['y']:.1f}x)"]]),
                 ["a sweep worker in all (the kernel, the runs' inputs and noise, the summaries)", "",
                  f"{worker:.0f} ns (" + ("" if y is None else f"{worker / y:.1f}x the yardstick; ")
                  + f"target {2.1 * args.workers:.1f}x per worker)"]]),
