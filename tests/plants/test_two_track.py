@@ -59,7 +59,7 @@ def test_magic_formula_peak_and_unit_slope():
 def test_tyre_shape_table_is_the_formula():
     """The tabulated ``F(u) / u`` (plants.tires.ShapeTable) against the formula it tabulates."""
     from evstab.plants.errors import ModelError
-    from evstab.plants.tires import TABLE_CURVATURE, TABLE_SHAPE, ShapeTable, _grid_derivatives, shape_table
+    from evstab.plants.tires import EPS_SLIP, TABLE_CURVATURE, TABLE_SHAPE, ShapeTable, _grid_derivatives, shape_table
     t = shape_table()
     c, e, n = TABLE_SHAPE, TABLE_CURVATURE, t.segments
     # exact at the grid points: each segment starts at the formula's value at w = i / n (its u = (1 - w) / w
@@ -100,7 +100,7 @@ def test_tyre_shape_table_is_the_formula():
     k_, ta = np.linspace(-0.2, 0.2, 41), np.linspace(0.3, -0.3, 41)
     args = (4000.0, 3500.0, 0.9, 52000.0, 80000.0)
     ux, uy = args[4] * k_ / (args[2] * args[1]), args[3] * ta / (args[2] * args[1])
-    uu = np.sqrt(ux * ux + uy * uy + 1e-18)
+    uu = np.sqrt(ux * ux + uy * uy + EPS_SLIP ** 2)
     fx, _ = combined_forces(k_, ta, *args, c, e, NUMPY)
     np.testing.assert_array_equal(fx, args[2] * args[0] * t.ratio(uu) * ux)
     fx, _ = combined_forces(k_, ta, *args, 1.6, 0.5, NUMPY)
