@@ -50,9 +50,12 @@ def _plant_step(spec: cl.LoopSpec) -> ca.Function:
     return ca.Function("plant_step", [x, u, pv], [x_next, y], ["x", "u", "p"], ["x_next", "truth"])
 
 
-def plant_kernel(spec: cl.LoopSpec, table: bool = True) -> lanes_mod.LaneRollout | None:
-    """The lane kernel of :func:`plant_step` at the loop's width and flags (None without a C compiler)."""
-    width = lanes_mod.native_width()
+def plant_kernel(spec: cl.LoopSpec, table: bool = True, cases: int | None = None) -> lanes_mod.LaneRollout | None:
+    """The lane kernel of :func:`plant_step` at the width and flags the loop's kernel has for ``cases``
+    cases at once (:meth:`toolkit.closed_loop.LoopProgram.run_batch`: the narrow kernel for one or two,
+    default the wide one); None without a C compiler."""
+    wide = lanes_mod.native_width()
+    width = lanes_mod.NARROW if cases is not None and cases <= lanes_mod.NARROW < wide else wide
     flags = lanes_mod.kernel_flags(width)
     return lanes_mod.compile_rollout(lambda: plant_step(spec, table), cache_key(
         "bench_plant", cl.traced(spec), table, width, flags, lanes_mod.machine_tag()), ROLES, flags=flags,

@@ -54,7 +54,8 @@ def plant_alone(spec, prog, U, z0, pv, Y, E, one_yardstick) -> dict | None:
     yardstick's ns per step, and the largest difference of each plant's truth from the loop's. None
     without a C compiler or a lane kernel."""
     import _plant
-    kernel, formula = _plant.plant_kernel(spec), _plant.plant_kernel(spec, table=False)
+    # at the width the loop's one-case run has (the narrow kernel), so that the two compare
+    kernel, formula = _plant.plant_kernel(spec, cases=1), _plant.plant_kernel(spec, table=False, cases=1)
     if kernel is None or formula is None or prog.lanes is None or one_yardstick is None:
         return None
     x0, u, diff = _plant.retrace(spec, kernel, U[None], z0[None], pv[None], E[None], Y[None])

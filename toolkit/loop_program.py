@@ -31,7 +31,8 @@ class LoopProgram:
 
     Compiled, the loop runs as a lane kernel (:mod:`toolkit.lanes`: :func:`lanes.native_width` cases per
     vector instruction, the time loop in C); :meth:`run_batch` rolls many cases out in one call and
-    :meth:`run` is its one-case form. Where the kernel cannot be built, casadi's generated C of the
+    :meth:`run` is its one-case form. One or two cases run on a narrow kernel of
+    :data:`toolkit.lanes.NARROW` lanes instead, built when first needed. Where the kernel cannot be built, casadi's generated C of the
     same step runs instead (``mapaccum`` over chunks of :data:`CHUNK` samples), and without a C
     compiler casadi's virtual machine.
     """
@@ -48,8 +49,8 @@ class LoopProgram:
         self.nin = n_inputs()
         self._jac = None
         # shared with the with_spec copies, so that one build serves them all
-        self._lazy = SimpleNamespace(trace=None, compiled=False, lanes=None, cf=None, cstep=None,
-                                     compile=compile, use_lanes=lanes)
+        self._lazy = SimpleNamespace(trace=None, compiled=False, lanes=None, kernels={}, lane_step=None, cf=None,
+                                     cstep=None, compile=compile, use_lanes=lanes)
 
     # --- built on first use
     def _trace(self):
@@ -75,26 +76,50 @@ class LoopProgram:
         if lz.compiled:
             return lz
         lz.compiled = True
-        spec = self.spec
         if lz.compile and lz.use_lanes:
-            try:
-                width = lanes_mod.native_width()
-                flags = lanes_mod.kernel_flags(width)
-                lz.lanes = lanes_mod.compile_rollout(lambda: _lane_step(spec), cache_key(
-                    "loop_lanes", spec, SLOTS, width, flags, lanes_mod.machine_tag()), LANE_ROLES, flags=flags,
-                    width=width)
-            except CompileError as e:
-                warnings.warn(f"evstab: no lane kernel for this loop ({e}); using casadi's generated C")
+            lz.lanes = self._lane_kernel(lanes_mod.native_width())
         if lz.compile and lz.lanes is None:
-            lib = compile_library([self.chunk, self.step], cache_key("loop", spec, CHUNK, SLOTS))
+            lib = compile_library([self.chunk, self.step], cache_key("loop", self.spec, CHUNK, SLOTS))
             if lib is not None:
                 dll = ctypes.CDLL(str(lib))
                 lz.cf, lz.cstep = CFunction(dll, "loop_chunk"), CFunction(dll, "loop_step")
         return lz
 
+    def _lane_kernel(self, width: int):
+        """The lane kernel of ``width`` lanes per vector, built (or loaded from the cache) on first use;
+        None where it cannot be built (warned once)."""
+        lz, spec = self._lazy, self.spec
+        if width not in lz.kernels:
+            flags = lanes_mod.kernel_flags(width)
+
+            def traced_step():  # traced once for the kernels of both widths
+                if lz.lane_step is None:
+                    lz.lane_step = _lane_step(spec)
+                return lz.lane_step
+            try:
+                lz.kernels[width] = lanes_mod.compile_rollout(traced_step, cache_key(
+                    "loop_lanes", spec, SLOTS, width, flags, lanes_mod.machine_tag()), LANE_ROLES, flags=flags,
+                    width=width)
+            except CompileError as e:
+                warnings.warn(f"evstab: no {width}-lane kernel for this loop ({e}); using "
+                              + ("the wide kernel" if width == lanes_mod.NARROW else "casadi's generated C"))
+                lz.kernels[width] = None
+        return lz.kernels[width]
+
+    def _kernel_for(self, n_cases: int):
+        """The lane kernel that rolls out ``n_cases`` together: the narrow one
+        (:data:`toolkit.lanes.NARROW` lanes) for as many cases as it holds where the machine's vectors
+        are wider, else the wide one (:attr:`lanes`); None where neither is built (casadi's C runs)."""
+        lz = self._lazy
+        if (lz.compile and lz.use_lanes and n_cases <= lanes_mod.NARROW < lanes_mod.native_width()
+                and self._lane_kernel(lanes_mod.NARROW) is not None):
+            return lz.kernels[lanes_mod.NARROW]
+        return self.lanes
+
     @property
     def lanes(self):
-        """The lane kernel (:class:`toolkit.lanes.LaneRollout`), or None."""
+        """The wide lane kernel (:class:`toolkit.lanes.LaneRollout`, :func:`toolkit.lanes.native_width`
+        lanes), or None."""
         return self._build_code().lanes
 
     @property
@@ -141,7 +166,7 @@ class LoopProgram:
         block by block; ``U``'s length must then be a multiple of :data:`CHUNK`)."""
         if final_state and U.shape[0] % CHUNK:
             raise LoopError(f"final_state needs a multiple of {CHUNK} samples, got {U.shape[0]}")
-        if self.lanes is not None:
+        if self._kernel_for(1) is not None:
             out = self.run_batch(np.asarray(U, float)[None], np.asarray(z0, float)[None],
                                  np.asarray(pv, float)[None], np.asarray(theta, float)[None], meas=meas,
                                  final_state=final_state)
@@ -195,7 +220,8 @@ class LoopProgram:
                         and a.flags.c_contiguous):
                     raise LoopError(f"run_batch: {what} must be a C-ordered float ({n_cases}, {n}, {k}) array, got "
                                     f"{getattr(a, 'dtype', type(a).__name__)} {getattr(a, 'shape', '')}")
-        if self.lanes is None:
+        kernel = self._kernel_for(n_cases)
+        if kernel is None:
             runs = [self.run(U[c], z0[c], pv[c], theta[c], meas=meas, final_state=final_state) for c in range(n_cases)]
             res = tuple(np.stack([r[i] for r in runs]) for i in range(len(runs[0]))) if runs else ()
             if out is not None and runs:
@@ -203,17 +229,18 @@ class LoopProgram:
                 res = tuple(out) + res[2:]
             return res
         if out is None:
-            z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, keep=(1, 2, 3) if meas else (1, 2))
+            z_end, (Y, E, M) = kernel(z0, [U, pv, theta], n, keep=(1, 2, 3) if meas else (1, 2))
         else:
             M = np.empty((n_cases, n, len(MEAS))) if meas else None
-            z_end, (Y, E, M) = self.lanes(z0, [U, pv, theta], n, outputs=[out[0], out[1], M])
+            z_end, (Y, E, M) = kernel(z0, [U, pv, theta], n, outputs=[out[0], out[1], M])
         res = (Y, E) + ((M,) if meas else ())
         return res + (z_end,) if final_state else res
 
     def step_once(self, z, u, pv, theta):
         """One sample through the compiled step (casadi's VM without a compiler): (z_next, y, e, m)."""
-        if self.lanes is not None:
-            z_end, outs = self.lanes(np.asarray(z, float)[None], [np.asarray(u, float)[None, None],
+        kernel = self._kernel_for(1)
+        if kernel is not None:
+            z_end, outs = kernel(np.asarray(z, float)[None], [np.asarray(u, float)[None, None],
                                                                   np.asarray(pv, float)[None],
                                                                   np.asarray(theta, float)[None]], 1)
             return (z_end[0],) + tuple(a[0, 0] for a in outs)  # one case, one sample

@@ -214,7 +214,9 @@ def test_lane_kernel_loop_equals_casadis_generated_c():
 def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep():
     """Lanes do not see each other: each case of a 50-case batch (blocks of lanes, the last
     partial at 4 or 8 lanes) equals the same case run alone, on every output, to 1e-12 (they are the same
-    operations, so in fact bit for bit)."""
+    operations, so in fact bit for bit). A case run alone, and two run together, go through the narrow
+    kernel (:data:`toolkit.lanes.NARROW` lanes) where the machine's vectors are wider: a kernel of another
+    width, compiled separately, which computes the same."""
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
     cases = sw.sweep_cases(quick=False)[:50]
     prog = cl.program(cfg.spec())
@@ -231,6 +233,13 @@ def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep(
         for a, b in ((Y[i], y), (E[i], e), (M[i], m), (z[i], zi)):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
             np.testing.assert_array_equal(a, b)
+    pair = prog.run_batch(U[[7, 42]], np.stack([runs[7][1], runs[42][1]]), np.stack([runs[7][2], runs[42][2]]),
+                          theta[[7, 42]], meas=True, final_state=True)
+    for a, b in zip(pair, (Y, E, M, z)):
+        np.testing.assert_array_equal(a, b[[7, 42]])
+    if lanes.native_width() > lanes.NARROW:  # the single runs and the pair were the narrow kernel's
+        assert prog._kernel_for(1).width == prog._kernel_for(2).width == lanes.NARROW
+        assert prog._kernel_for(3) is prog.lanes and prog.lanes.width == lanes.native_width()
 
 
 def test_run_batch_into_given_arrays_returns_them_with_the_same_numbers():
