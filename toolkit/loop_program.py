@@ -132,7 +132,10 @@ class LoopProgram:
 
     @property
     def backend(self) -> str:
-        """``lanes`` (the lane kernel), ``c`` (casadi's generated C) or ``casadi`` (its virtual machine)."""
+        """``lanes`` (a lane kernel), ``c`` (casadi's generated C) or ``casadi`` (its virtual machine). A
+        lane kernel already built answers it; otherwise the wide one is built to find out."""
+        if any(k is not None for k in self._lazy.kernels.values()):
+            return "lanes"  # not the wide kernel's build for a program that has run only narrow
         return "lanes" if self.lanes is not None else ("c" if self.cf is not None else "casadi")
 
     def compile(self) -> "LoopProgram":
