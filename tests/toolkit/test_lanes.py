@@ -119,9 +119,9 @@ def test_rollout_kernel_equals_casadi_on_exact_arithmetic(tmp_path):
 
 def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
     # the vector math (sin/cos sharing a reduction, atan, tanh, exp), reciprocal products and
-    # branches of a nonlinear step: the kernel at 1, 4 and 8 lanes gives the same bits, so the lane
-    # width native_width() picks for a machine (and the optimisation level, kernel_flags) changes only
-    # the speed
+    # branches of a nonlinear step: the kernel at 1, 2, 4 and 8 lanes gives the same bits, so the lane
+    # width native_width() picks for a machine, the narrow kernel of one-case runs (NARROW) and the
+    # optimisation level (kernel_flags) change only the speed
     x, u, a = ca.SX.sym("x", 3), ca.SX.sym("u"), ca.SX.sym("a")
     xn = ca.vertcat(x[0] + 0.01 * (ca.sin(x[1]) * a - ca.atan(x[0] / a)),
                     x[1] + 0.01 * (ca.cos(x[1]) + ca.tanh(u * x[2]) - x[1] / a),
@@ -131,7 +131,7 @@ def test_rollout_kernel_is_the_same_at_every_lane_width(tmp_path):
     r = np.random.default_rng(3)
     U, A, Z0 = r.normal(size=(n_cases, n, 1)), r.uniform(0.5, 2.0, size=(n_cases, 1)), r.normal(size=(n_cases, 3))
     runs = [_kernel(f, tmp_path, width=w, flags=lanes.kernel_flags(w))(Z0, [U, A], n)
-            for w in (1, lanes.WIDTH, lanes.WIDE)]
+            for w in (1, lanes.NARROW, lanes.WIDTH, lanes.WIDE)]
     runs.append(_kernel(f, tmp_path, width=lanes.WIDE)(Z0, [U, A], n))  # -O3 as well
     for z_end, (Y,) in runs[1:]:
         np.testing.assert_array_equal(z_end, runs[0][0])
