@@ -166,6 +166,37 @@ def _nodes(fn: ca.Function, const_inputs: set[int]):
     return nodes, outputs
 
 
+LATENCY = {ca.OP_DIV: 13.0, ca.OP_SQRT: 15.0, ca.OP_SIN: 40.0, ca.OP_COS: 40.0, ca.OP_TANH: 40.0,
+           ca.OP_EXP: 30.0, ca.OP_ATAN2: 60.0, ca.OP_CALL: 40.0}
+"""Rough latencies [cycles] of the operations slower than the 3 of an add or a product (a vector
+division or square root; the vector math and the call intrinsics as tens of operations in a chain),
+by which :func:`_schedule` orders a step."""
+
+
+def _schedule(nodes: list[_Node]) -> list[int]:
+    """The order to write a step's nodes in: by the latency (:data:`LATENCY`, 3 for the others) of
+    the longest chain of operations that leads to each from the step's inputs, ties in casadi's
+    order. Every node follows what it reads, and what the per-case inputs alone determine comes
+    first, in casadi's order (the hoisted part).
+
+    casadi writes an instruction list in the order the expressions were built: one wheel's tyre
+    after another, RK4's stages one after another, so that neighbouring instructions mostly wait on
+    each other. A loop step is thousands of instructions, more than a processor's out-of-order window
+    looks ahead, so it finds the independent work only if it is written close together. Ordered by
+    chain length, the work that can start together is written together: the compact-ev two-track
+    loop's kernel took 324-334 against 425-429 ns per case and step at 8 lanes (32 cases,
+    alternating runs), a one-case micro-ev run 1.15-1.30 against 1.36-1.58 us per step at 2 lanes,
+    the same bits (``tests/toolkit/test_lanes.py``). Unit latencies for every operation gave 354
+    and 1.20-1.26."""
+    depth = [0.0] * len(nodes)
+    for n, node in enumerate(nodes):
+        if node.invariant or node.op in (ca.OP_INPUT, ca.OP_CONST):
+            continue
+        d = max((depth[a] for a in node.args), default=0.0)
+        depth[n] = d if node.op == _CALL_OUT else d + LATENCY.get(node.op, 3.0)  # a call's outputs: its time
+    return sorted(range(len(nodes)), key=lambda n: (-1.0, n) if nodes[n].invariant else (depth[n], n))
+
+
 def _strength_reduce(nodes: list[_Node]) -> list[_Node]:
     """``a / d`` with ``d`` the same in every sample (a constant, or a function of the per-case
     inputs alone) becomes ``a * (1 / d)``, the reciprocal computed once per block of cases: a
@@ -206,7 +237,7 @@ def _expr(nodes: list[_Node], n: int, name, sincos: dict) -> str:
     return BINARY[node.op].format(a=args[0], b=args[1])
 
 
-def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH) -> str:
+def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH, schedule: bool = True) -> str:
     """C source of ``int fname(long n_steps, long n_cases, const double* z0, const double* const* in,
     double* z_end, double* const* out, const long* st)``: ``n_steps`` samples of ``fn`` for ``n_cases`` cases.
 
@@ -220,7 +251,8 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
     What the per-case inputs alone determine is computed once per block, before the time loop,
     and divisions by it become products (:func:`_strength_reduce`); repeated subexpressions are
     computed once (:func:`toolkit.compiled.shared`); ``sin`` and ``cos`` of one argument share their
-    range reduction.
+    range reduction. The step's instructions are written in the order of :func:`_schedule`
+    (``schedule=False``: casadi's), which changes the speed and not the bits.
     """
     if not fn.is_a("SXFunction"):
         raise CompileError(f"{fn.name()}: a lane kernel needs an SX function")
@@ -259,8 +291,13 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
         sincos[ns], sincos[nc] = f"sc{first}.s", f"sc{first}.c"
         pair_at[first] = f"ev_sc sc{first} = ev_sincos2({name(a)});"
 
+    order = _schedule(nodes) if schedule else list(range(len(nodes)))
+    at = {n: i for i, n in enumerate(order)}
+    pair_first = {min(ns, nc, key=at.__getitem__): first for first, ns, nc, _ in pairs}  # where a pair is written
+
     hoisted, body, used = [], [], set()
-    for n, node in enumerate(nodes):
+    for n in order:
+        node = nodes[n]
         if node.op == ca.OP_INPUT:
             src, el = node.src
             if src == 0:
@@ -270,8 +307,8 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
             else:
                 hoisted.append(f"const vd h{n} = c{src}[{el}];")
             continue
-        if n in pair_at:
-            body.append(pair_at[n])
+        if n in pair_first:
+            body.append(pair_at[pair_first[n]])
         if node.op == ca.OP_CALL:
             ins = ", ".join(name(a) for a in node.args)
             line = f"vd {name(n)}[{node.src[1]}]; {node.src[0]}((const vd[]){{{ins}}}, {name(n)});"

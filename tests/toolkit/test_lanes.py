@@ -85,9 +85,9 @@ def test_vector_atan2_quadrants_axes_and_signed_zeros(mathlib):
     assert np.all(_same(_call(mathlib, "atan2", Y, X), np.arctan2(Y, X)))  # C99 Annex F, exactly
 
 
-def _kernel(fn, tmp_path, stepped=(1,), width=lanes.WIDTH, flags=lanes.CFLAGS):
-    src = lanes.rollout_source(fn, "k", lanes.Roles(stepped=stepped), width=width)
-    tag = f"{width}{flags[0]}"
+def _kernel(fn, tmp_path, stepped=(1,), width=lanes.WIDTH, flags=lanes.CFLAGS, schedule=True):
+    src = lanes.rollout_source(fn, "k", lanes.Roles(stepped=stepped), width=width, schedule=schedule)
+    tag = f"{width}{flags[0]}{schedule}"
     c = tmp_path / f"k{tag}.c"
     c.write_text(src)
     so = tmp_path / f"k{tag}.so"
@@ -209,6 +209,30 @@ def test_lane_kernel_loop_equals_casadis_generated_c():
     # measured: 3e-14 in the truth, 8e-12 N m in the yaw moment (of ~300 N m)
     for a, b in ((Y, Yr), (E, Er), (M, Mr)):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-11)
+
+
+def test_the_order_the_kernel_writes_a_step_in_changes_no_bit(tmp_path):
+    """The loop step written in casadi's instruction order and in :func:`toolkit.lanes._schedule`'s
+    (the kernels' order, for speed): the same operations on the same values, so the same bits over a
+    3 s closed-loop run, on every output and the final state."""
+    p = load_vehicle("micro-ev")
+    man = step_steer(25 / 3.6, np.radians(5.0), start=0.2, duration=3.0)
+    sens = SensorConfig()
+    spec = cl.loop_spec(p, sensors=sens)
+    prog = cl.program(spec)
+    step = cl._lane_step(cl.traced(spec))
+    roles = lanes.Roles(stepped=cl.LANE_ROLES.stepped)
+    written = [lanes.rollout_source(step, "k", roles, lanes.NARROW, schedule=s).split("for (long k = 0;")[1]
+               for s in (True, False)]
+    assert written[0] != written[1] and sorted(written[0].splitlines()) == sorted(written[1].splitlines())
+    U, z0, pv = prog.inputs(p, man, Disturbances(wind=default_wind(p)), sens, 0)
+    th = prog.theta()
+    casadi_order = _kernel(step, tmp_path, stepped=cl.LANE_ROLES.stepped, width=lanes.NARROW,
+                           flags=lanes.kernel_flags(lanes.NARROW), schedule=False)
+    z, (Y, E, M) = casadi_order(z0[None], [U[None], pv[None], th[None]], len(U))
+    Ys, Es, Ms, zs = prog.run(U, z0, pv, th, meas=True, final_state=True)
+    for a, b in ((Y[0], Ys), (E[0], Es), (M[0], Ms), (z[0], zs)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep():
