@@ -187,7 +187,9 @@ def _schedule(nodes: list[_Node]) -> list[int]:
     loop's kernel took 324-334 against 425-429 ns per case and step at 8 lanes (32 cases,
     alternating runs), a one-case micro-ev run 1.15-1.30 against 1.36-1.58 us per step at 2 lanes,
     the same bits (``tests/toolkit/test_lanes.py``). Unit latencies for every operation gave 354
-    and 1.20-1.26."""
+    and 1.20-1.26. Not for every kernel: the tuning's forward-mode step, 56k instructions at 4 lanes
+    and -O1, took 5.8 against 3.3 us per case and step in this order (its values then live long
+    and spill), so it keeps casadi's (:mod:`toolkit.tuning`)."""
     depth = [0.0] * len(nodes)
     for n, node in enumerate(nodes):
         if node.invariant or node.op in (ca.OP_INPUT, ca.OP_CONST):
@@ -459,15 +461,15 @@ class LaneRollout:
 
 
 def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout",
-                    flags: tuple[str, ...] = CFLAGS, width: int = WIDTH) -> LaneRollout | None:
+                    flags: tuple[str, ...] = CFLAGS, width: int = WIDTH, schedule: bool = True) -> LaneRollout | None:
     """The lane kernel of ``fn`` (a casadi SX function, or a callable returning one) from the compiled
     cache, built when missing (with ``flags``: :data:`CFLAGS` or others that keep its arithmetic IEEE;
-    ``width`` lanes per vector, which ``key`` must name); None without a C compiler or when the
-    compiler fails."""
+    ``width`` lanes per vector, which ``key`` must name; ``schedule``: :func:`rollout_source`'s, which
+    ``key`` must name where it varies); None without a C compiler or when the compiler fails."""
     if compiler() is None:
         return None
     fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
-    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles, width)), key, flags,
+    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles, width, schedule)), key, flags,
                          "casadi's generated C")
     if lib is None:
         return None

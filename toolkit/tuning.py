@@ -201,7 +201,7 @@ class RolloutCost:
         self.lanes = lanes_mod.compile_rollout(
             lambda: _forward_step(spec, k), cache_key("tune_lanes", "a_y out", spec, k, closed_loop.SLOTS,
                                                       lanes_mod.WIDTH, lanes_mod.machine_tag()),
-            closed_loop.LANE_ROLES, flags=FORWARD_CFLAGS) if lanes else None
+            closed_loop.LANE_ROLES, flags=FORWARD_CFLAGS, schedule=False) if lanes else None  # see lanes._schedule
         self.cf = None
         if self.lanes is None:
             self.fn = _cost_function(self.prog, self.n, self.nz_max)
