@@ -32,9 +32,9 @@ class LoopProgram:
     Compiled, the loop runs as a lane kernel (:mod:`toolkit.lanes`: :func:`lanes.native_width` cases per
     vector instruction, the time loop in C); :meth:`run_batch` rolls many cases out in one call and
     :meth:`run` is its one-case form. One or two cases run on a narrow kernel of
-    :data:`toolkit.lanes.NARROW` lanes instead, built when first needed. Where the kernel cannot be built, casadi's generated C of the
-    same step runs instead (``mapaccum`` over chunks of :data:`CHUNK` samples), and without a C
-    compiler casadi's virtual machine.
+    :data:`toolkit.lanes.NARROW` lanes instead, built when first needed. Where the kernel cannot be
+    built, casadi's generated C of the same step runs instead (``mapaccum`` over chunks of
+    :data:`CHUNK` samples), and without a C compiler casadi's virtual machine.
     """
 
     def __init__(self, spec: LoopSpec, compile: bool = True, lanes: bool = True):
