@@ -173,10 +173,11 @@ division or square root; the vector math and the call intrinsics as tens of oper
 by which :func:`_schedule` orders a step."""
 
 
-def _schedule(nodes: list[_Node]) -> list[int]:
+def _schedule(nodes: list[_Node], window: int | None = None) -> list[int]:
     """The order to write a step's nodes in: by the latency (:data:`LATENCY`, 3 for the others) of
     the longest chain of operations that leads to each from the step's inputs, ties in casadi's
-    order. Every node follows what it reads, and what the per-case inputs alone determine comes
+    order; with ``window``, within each run of that many nodes of casadi's list, one run after
+    another. Every node follows what it reads, and what the per-case inputs alone determine comes
     first, in casadi's order (the hoisted part).
 
     casadi writes an instruction list in the order the expressions were built: one wheel's tyre
@@ -187,16 +188,20 @@ def _schedule(nodes: list[_Node]) -> list[int]:
     loop's kernel took 324-334 against 425-429 ns per case and step at 8 lanes (32 cases,
     alternating runs), a one-case micro-ev run 1.15-1.30 against 1.36-1.58 us per step at 2 lanes,
     the same bits (``tests/toolkit/test_lanes.py``). Unit latencies for every operation gave 354
-    and 1.20-1.26. Not for every kernel: the tuning's forward-mode step, 56k instructions at 4 lanes
-    and -O1, took 5.8 against 3.3 us per case and step in this order (its values then live long
-    and spill), so it keeps casadi's (:mod:`toolkit.tuning`)."""
+    and 1.20-1.26. A kernel much larger than the registers can hold needs the window: the tuning's
+    forward-mode step, 56k instructions at 4 lanes and -O1, took 5.8 against 3.3 us per case and
+    step in this order over the whole step (its values then live long and spill), and 2.5 against
+    2.9 us with windows of 1024 nodes (:data:`toolkit.tuning.FORWARD_WINDOW`). The loop's kernels
+    keep the whole step: windows of 1024 left the sweep's kernel as it was and made the one-case
+    plant kernel slower (0.61 against 0.50-0.52 us per step)."""
     depth = [0.0] * len(nodes)
     for n, node in enumerate(nodes):
         if node.invariant or node.op in (ca.OP_INPUT, ca.OP_CONST):
             continue
         d = max((depth[a] for a in node.args), default=0.0)
         depth[n] = d if node.op == _CALL_OUT else d + LATENCY.get(node.op, 3.0)  # a call's outputs: its time
-    return sorted(range(len(nodes)), key=lambda n: (-1.0, n) if nodes[n].invariant else (depth[n], n))
+    w = window or len(nodes)
+    return sorted(range(len(nodes)), key=lambda n: (-1, 0.0, n) if nodes[n].invariant else (n // w, depth[n], n))
 
 
 def _strength_reduce(nodes: list[_Node]) -> list[_Node]:
@@ -239,7 +244,8 @@ def _expr(nodes: list[_Node], n: int, name, sincos: dict) -> str:
     return BINARY[node.op].format(a=args[0], b=args[1])
 
 
-def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH, schedule: bool = True) -> str:
+def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH, schedule: bool = True,
+                   window: int | None = None) -> str:
     """C source of ``int fname(long n_steps, long n_cases, const double* z0, const double* const* in,
     double* z_end, double* const* out, const long* st)``: ``n_steps`` samples of ``fn`` for ``n_cases`` cases.
 
@@ -253,8 +259,8 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
     What the per-case inputs alone determine is computed once per block, before the time loop,
     and divisions by it become products (:func:`_strength_reduce`); repeated subexpressions are
     computed once (:func:`toolkit.compiled.shared`); ``sin`` and ``cos`` of one argument share their
-    range reduction. The step's instructions are written in the order of :func:`_schedule`
-    (``schedule=False``: casadi's), which changes the speed and not the bits.
+    range reduction. The step's instructions are written in the order of :func:`_schedule` (with
+    ``window``; ``schedule=False``: casadi's), which changes the speed and not the bits.
     """
     if not fn.is_a("SXFunction"):
         raise CompileError(f"{fn.name()}: a lane kernel needs an SX function")
@@ -293,7 +299,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
         sincos[ns], sincos[nc] = f"sc{first}.s", f"sc{first}.c"
         pair_at[first] = f"ev_sc sc{first} = ev_sincos2({name(a)});"
 
-    order = _schedule(nodes) if schedule else list(range(len(nodes)))
+    order = _schedule(nodes, window) if schedule else list(range(len(nodes)))
     at = {n: i for i, n in enumerate(order)}
     pair_first = {min(ns, nc, key=at.__getitem__): first for first, ns, nc, _ in pairs}  # where a pair is written
 
@@ -461,16 +467,17 @@ class LaneRollout:
 
 
 def compile_rollout(fn, key: str, roles: Roles, name: str = "ev_rollout",
-                    flags: tuple[str, ...] = CFLAGS, width: int = WIDTH, schedule: bool = True) -> LaneRollout | None:
+                    flags: tuple[str, ...] = CFLAGS, width: int = WIDTH,
+                    window: int | None = None) -> LaneRollout | None:
     """The lane kernel of ``fn`` (a casadi SX function, or a callable returning one) from the compiled
     cache, built when missing (with ``flags``: :data:`CFLAGS` or others that keep its arithmetic IEEE;
-    ``width`` lanes per vector, which ``key`` must name; ``schedule``: :func:`rollout_source`'s, which
-    ``key`` must name where it varies); None without a C compiler or when the compiler fails."""
+    ``width`` lanes per vector, which ``key`` must name; ``window``: :func:`_schedule`'s, which ``key``
+    must name where it varies); None without a C compiler or when the compiler fails."""
     if compiler() is None:
         return None
     fn = fn() if callable(fn) and not isinstance(fn, ca.Function) else fn
-    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles, width, schedule)), key, flags,
-                         "casadi's generated C")
+    lib = compile_source(lambda path: path.write_text(rollout_source(fn, name, roles, width, window=window)), key,
+                         flags, "casadi's generated C")
     if lib is None:
         return None
     return LaneRollout(lib, name, fn, roles, width)
