@@ -54,7 +54,8 @@ run continued block by block) where :func:`native_width` is wider. A vector's st
 much with one case in it as with all of them, and a narrow one costs about half a wide one: a
 one-case run of micro-ev's two-track loop took 1.37 us per step at 2 lanes against 2.64 us at 8
 (1.40 at 1 lane, 1.55 at 4; the same results bit for bit; the 2-core AMD EPYC of
-:func:`native_width`). Two lanes hold two cases for the price of one."""
+:func:`native_width`, the instructions in casadi's order, before :func:`_schedule`). Two lanes hold
+two cases for the price of one."""
 
 CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno")
 """No fused multiply-add and no fast-math: every lane's arithmetic is IEEE, as in a scalar
