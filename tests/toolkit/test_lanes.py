@@ -221,8 +221,7 @@ def test_the_order_the_kernel_writes_a_step_in_changes_no_bit(tmp_path):
     spec = cl.loop_spec(p, sensors=sens)
     prog = cl.program(spec)
     step = cl._lane_step(cl.traced(spec))
-    roles = lanes.Roles(stepped=cl.LANE_ROLES.stepped)
-    written = [lanes.rollout_source(step, "k", roles, lanes.NARROW, schedule=s).split("for (long k = 0;")[1]
+    written = [lanes.rollout_source(step, "k", cl.LANE_ROLES, lanes.NARROW, schedule=s).split("for (long k = 0;")[1]
                for s in (True, False)]
     assert written[0] != written[1] and sorted(written[0].splitlines()) == sorted(written[1].splitlines())
     U, z0, pv = prog.inputs(p, man, Disturbances(wind=default_wind(p)), sens, 0)
