@@ -15,10 +15,12 @@ the A2L and CDFX files use (:func:`symbol_names`).
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 
 from evstab.controllers.schedule import ROWS
 
+from ..compiled import shared
 from .cgen import Precision, c_array, emit_body
 from .ecu import INPUTS, OUTPUTS, EcuDesign, traced_steps
 
@@ -201,17 +203,24 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
         return f"in->{name}"
 
     reads = [lambda k: f"z[{k}]", read_input, lambda k: f"sch[{k}]", lambda k: cal_syms[k]]
-    writes = [lambda k: f"zn[{k}]", lambda k: f"out->{out_names[k]}"]
     moving = bool(d.filter.standstill_update)
     for fn in traced_steps(d, moving=moving):
+        fn = shared(fn)  # each repeated subexpression once: the same values (see toolkit.compiled.shared)
+        kinds = state_writes(fn)
+        deferred = sorted(k for k, kind in kinds.items() if kind == "defer")
+        state = {"skip": lambda k: None, "in place": lambda k: f"z[{k}]", "defer": lambda k: f"zd{k}"}
+        writes = [lambda k: state[kinds[k]](k), lambda k: f"out->{out_names[k]}"]
         body = emit_body(fn, reads, writes, p)
-        parts.append(f"static void {PREFIX}_{fn.name()}(const evstab_real *z, const evstab_input_t *in, "
-                     f"const evstab_real *sch,\n        evstab_real *zn, evstab_output_t *out)\n{{")
-        parts.append("    (void)z; (void)in; (void)sch; (void)zn; (void)out;")
+        parts.append(f"static void {PREFIX}_{fn.name()}(evstab_real *z, const evstab_input_t *in, "
+                     f"const evstab_real *sch,\n        evstab_output_t *out)\n{{")
+        parts.append("    (void)z; (void)in; (void)sch; (void)out;")
+        if deferred:
+            parts.append(f"    evstab_real {', '.join(f'zd{k}' for k in deferred)};")
         parts.extend(body)
+        parts.extend(f"    z[{k}] = zd{k};" for k in deferred)
         parts.append("}\n")
     moving_branch = (f""" else if (in->speed >= {p.literal(float(d.filter.noise.standstill_speed))}) {{ /* no standstill """
-                     f"""update: its gate is 0 */\n        {PREFIX}_ecu_nofix_moving(s->z, in, sch, zn, out);\n    }}"""
+                     f"""update: its gate is 0 */\n        {PREFIX}_ecu_nofix_moving(s->z, in, sch, out);\n    }}"""
                      if moving else "")
     parts.append(f"""void evstab_init(evstab_state_t *s)
 {{
@@ -222,7 +231,6 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
 void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *out)
 {{
     evstab_real sch[{nf + nc}]; /* the filter's transition rows, then the schedule's */
-    evstab_real zn[EVSTAB_STATE_SIZE];
     evstab_real t;
     const evstab_real vf = {p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED);
     const evstab_real vc = {p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED);
@@ -233,14 +241,39 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *o
     }}
     {PREFIX}_schedule_rows(lo, t, sch + {nf});
     if (in->gps_valid != 0) {{
-        {PREFIX}_ecu_fix(s->z, in, sch, zn, out);
+        {PREFIX}_ecu_fix(s->z, in, sch, out);
     }}{moving_branch} else {{
-        {PREFIX}_ecu_nofix(s->z, in, sch, zn, out);
+        {PREFIX}_ecu_nofix(s->z, in, sch, out);
     }}
-    memcpy(s->z, zn, sizeof zn);
 }}
 """)
     return "\n".join(parts)
+
+
+def state_writes(fn) -> dict[int, str]:
+    """How the C of SX step ``fn`` (input 0 the state, output 0 the next state) writes each next-state
+    element: ``skip`` (it is the element as read: nothing to write), ``in place`` (written over the
+    state after the last read of that element) or ``defer`` (read again after it is known: kept in a
+    local and written at the end). The step then needs no second state array and no copy of it: the
+    compact-ev ECU writes 63-66 of its 73 elements in place, leaves 7-10 and defers none."""
+    last_read: dict[int, int] = {}
+    for i in range(fn.n_instructions()):
+        if fn.instruction_id(i) == ca.OP_INPUT and fn.instruction_input(i)[0] == 0:
+            last_read[fn.instruction_input(i)[1]] = i
+    holds: dict[int, int | None] = {}  # work variable -> the state element it holds unchanged, if any
+    kinds: dict[int, str] = {}
+    for i in range(fn.n_instructions()):
+        op, ins, outs = fn.instruction_id(i), fn.instruction_input(i), fn.instruction_output(i)
+        if op == ca.OP_OUTPUT:
+            if outs[0] == 0:
+                k = outs[1]
+                kinds[k] = "skip" if holds.get(ins[0]) == k else (
+                    "in place" if i > last_read.get(k, -1) else "defer")
+            continue
+        held = ins[1] if op == ca.OP_INPUT and ins[0] == 0 else None
+        for w in outs:
+            holds[w] = held
+    return kinds
 
 
 def harness() -> str:
