@@ -14,7 +14,7 @@ import pytest
 
 from evstab.toolkit.compiled import compiler
 from evstab.toolkit.firmware.cgen import Precision, emit_body
-from evstab.toolkit.firmware.csource import state_writes
+from evstab.toolkit.firmware.csource import state_targets, state_writes
 
 CC = compiler()
 needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
@@ -28,19 +28,13 @@ def _library(tmp_path, fn: ca.Function, in_place: bool):
     p = Precision("float64")
     ny = fn.nnz_out(1)
     if in_place:
-        kinds = state_writes(fn)
-        deferred = sorted(k for k, kind in kinds.items() if kind == "defer")
-        state = {"skip": lambda k: None, "in place": lambda k: f"z[{k}]", "defer": lambda k: f"zd{k}"}
-        writes = [lambda k: state[kinds[k]](k), lambda k: f"y[{k}]"]
+        target, declare, finish = state_targets(fn, "z", "double")
     else:
-        deferred = []
-        writes = [lambda k: f"y[{ny + k}]", lambda k: f"y[{k}]"]
-    body = emit_body(fn, [lambda k: f"z[{k}]", lambda k: f"u[{k}]"], writes, p)
+        target, declare, finish = (lambda k: f"y[{ny + k}]"), [], []
+    body = emit_body(fn, [lambda k: f"z[{k}]", lambda k: f"u[{k}]"], [target, lambda k: f"y[{k}]"], p)
     src = ["#include <math.h>", "void step(double *z, const double *u, double *y);",
            "void step(double *z, const double *u, double *y)", "{", "    (void)z; (void)u; (void)y;"]
-    if deferred:
-        src.append("    double " + ", ".join(f"zd{k}" for k in deferred) + ";")
-    src += body + [f"    z[{k}] = zd{k};" for k in deferred] + ["}"]
+    src += ["    " + line for line in declare] + body + ["    " + line for line in finish] + ["}"]
     c, lib = tmp_path / f"{fn.name()}.c", tmp_path / f"{fn.name()}.so"
     c.write_text("\n".join(src) + "\n")
     subprocess.run([CC, *STRICT, "-shared", "-fPIC", "-o", str(lib), str(c), "-lm"], check=True, capture_output=True)

@@ -206,18 +206,14 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
     moving = bool(d.filter.standstill_update)
     for fn in traced_steps(d, moving=moving):
         fn = shared(fn)  # each repeated subexpression once: the same values (see toolkit.compiled.shared)
-        kinds = state_writes(fn)
-        deferred = sorted(k for k, kind in kinds.items() if kind == "defer")
-        state = {"skip": lambda k: None, "in place": lambda k: f"z[{k}]", "defer": lambda k: f"zd{k}"}
-        writes = [lambda k: state[kinds[k]](k), lambda k: f"out->{out_names[k]}"]
-        body = emit_body(fn, reads, writes, p)
+        target, declare, finish = state_targets(fn, "z", "evstab_real")
+        body = emit_body(fn, reads, [target, lambda k: f"out->{out_names[k]}"], p)
         parts.append(f"static void {PREFIX}_{fn.name()}(evstab_real *z, const evstab_input_t *in, "
                      f"const evstab_real *sch,\n        evstab_output_t *out)\n{{")
         parts.append("    (void)z; (void)in; (void)sch; (void)out;")
-        if deferred:
-            parts.append(f"    evstab_real {', '.join(f'zd{k}' for k in deferred)};")
+        parts.extend("    " + line for line in declare)
         parts.extend(body)
-        parts.extend(f"    z[{k}] = zd{k};" for k in deferred)
+        parts.extend("    " + line for line in finish)
         parts.append("}\n")
     moving_branch = (f""" else if (in->speed >= {p.literal(float(d.filter.noise.standstill_speed))}) {{ /* no standstill """
                      f"""update: its gate is 0 */\n        {PREFIX}_ecu_nofix_moving(s->z, in, sch, out);\n    }}"""
@@ -274,6 +270,21 @@ def state_writes(fn) -> dict[int, str]:
         for w in outs:
             holds[w] = held
     return kinds
+
+
+def state_targets(fn, state: str, ctype: str):
+    """Where the C of step ``fn`` writes its next state over the array ``state`` (:func:`state_writes`):
+    ``(target, declare, finish)``, ``target(k)`` the lvalue of element ``k`` for :func:`cgen.emit_body`
+    (None: not written), ``declare`` the lines declaring the locals of the deferred elements (of
+    type ``ctype``), ``finish`` the lines writing them, after the body."""
+    kinds = state_writes(fn)
+    deferred = sorted(k for k, kind in kinds.items() if kind == "defer")
+
+    def target(k):
+        kind = kinds[k]
+        return None if kind == "skip" else (f"{state}[{k}]" if kind == "in place" else f"{state}d{k}")
+    declare = [f"{ctype} {', '.join(f'{state}d{k}' for k in deferred)};"] if deferred else []
+    return target, declare, [f"{state}[{k}] = {state}d{k};" for k in deferred]
 
 
 def harness() -> str:
