@@ -326,7 +326,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
             continue
         line = f"const vd {name(n)} = {_expr(nodes, n, name, sincos)};"
         (hoisted if node.invariant else body).append(line)
-    stores: dict[int, list[str]] = {}
+    stores: dict[int, dict[int, str]] = {}  # output -> element -> its value's name
     for dst, el, n in outputs:
         if dst == 0:  # after every read of the state: written over it (an element that stays as read is not)
             if not (nodes[n].op == ca.OP_INPUT and nodes[n].src == (0, el)):
@@ -338,7 +338,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
         # not one per element (compact-ev's sweep kernel at 8 lanes: storing both outputs took 10-19
         # against 27-30 ns per case and step, of 306-311 against 324-325 in all)
         m = fn.nnz_out(dst)
-        vals = ", ".join(stores[dst].get(el, "ev_splat(0.0)") for el in range(m))
+        vals = ", ".join(stores[dst][el] for el in range(m))  # dense outputs: every element is there
         body.append(f"if (out[{dst}]) {{")
         body.append(f"  const vd ob[{m}] = {{{vals}}};")
         body.append(f"  for (int l = 0; l < n_act; l++) for (int e = 0; e < {m}; e++) wp{dst}[l][e] = ob[e][l];")
