@@ -241,7 +241,8 @@ def cmd_convert(args) -> int:
     from .nmea import merge_onto_imu, read_nmea
 
     if (args.log is None) == (args.nmea is None):
-        raise EvstabError("give an MDF log with --channel-map, or --nmea GPS.nmea with --imu IMU.csv")
+        raise EvstabError("give a log with --map (MDF4, MATLAB or CSV, and the channel map that names its channels), "
+                          "or --nmea GPS.nmea with --imu IMU.csv")
     if args.nmea is not None:
         if args.imu is None or args.channel_map is not None:
             raise EvstabError("--nmea goes with --imu IMU.csv (and no --channel-map)")
@@ -264,10 +265,44 @@ def cmd_convert(args) -> int:
     else:
         if args.imu is not None or args.time_offset != 0.0:
             raise EvstabError("--imu and --time-offset go with --nmea")
+        if args.channel_map is None:
+            raise EvstabError(f"{args.log}: give --map MAP.toml, the channel map that names the file's channel for "
+                              f"each drive-log column (docs/formats.md)")
         merged = read_log(args.log, None, args.channel_map).columns
         what = f"{args.log}: {len(merged['t'])} rows"
     write_log_csv(args.out, merged)
-    print(f"{what}; {int(np.isfinite(merged['gps_course']).sum())} GPS fixes -> {args.out}")
+    fixes = int(np.isfinite(merged["gps_course"]).sum())
+    truth = [c for c in merged if c.endswith("_true")]
+    print(f"{what}; {fixes} GPS fixes" + (f"; reference {', '.join(truth)}" if truth else "") + f" -> {args.out}")
+    if not fixes:
+        print("  no GPS course: a reference log; 'evstab emulate' adds a receiver's course (and a production gyro)")
+    return 0
+
+
+def cmd_emulate(args) -> int:
+    from .emulate import PRODUCTION_GYRO, Emulation, emulate, write_metadata
+    from .logio import read_log, write_log_csv
+
+    log = read_log(args.log, None, args.channel_map)
+    gyro = dict(PRODUCTION_GYRO) if args.gyro == "production" else {"gyro": "reference"}
+    for key, value in (("gyro_bias", args.gyro_bias), ("gyro_scale", args.gyro_scale),
+                       ("gyro_noise", args.gyro_noise)):
+        if value is not None:
+            if args.gyro != "production":
+                raise EvstabError(f"--{key.replace('_', '-')} goes with --gyro production")
+            gyro[key] = value
+    if args.gyro_quantum is not None:
+        if args.gyro != "production":
+            raise EvstabError("--gyro-quantum goes with --gyro production")
+        gyro["gyro_quantum"] = float(np.radians(args.gyro_quantum))
+    em = Emulation(seed=args.seed, gps_rate=args.gps_rate, gps_offset=args.gps_offset,
+                   gps_velocity_noise=args.gps_velocity_noise, gps_course_noise=float(np.radians(args.gps_course_noise)),
+                   gps_latency=args.gps_latency, **gyro)
+    cols = emulate(log, em)
+    write_log_csv(args.out, cols)
+    write_metadata(args.out, em, str(args.log))
+    print(f"{args.log}: {len(cols['t'])} rows, {int(np.isfinite(cols['gps_course']).sum())} GPS fixes emulated "
+          f"({em.describe()}) -> {args.out}")
     return 0
 
 
@@ -390,13 +425,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_simulate)
     from .estimation import METHODS
     sp = sub.add_parser("estimate", help="estimate sideslip, yaw rate and yaw from a drive log")
-    sp.add_argument("log", help="drive log: CSV (DESIGN.md schema), .csv.gz, or .mf4 with --channel-map")
+    sp.add_argument("log", help="drive log: CSV (the schema of docs/formats.md), .csv.gz, or .mf4/.mat/CSV with "
+                                "--map")
     sp.add_argument("--vehicle", help="bundled name or TOML path (its nominal parameters are used)")
     sp.add_argument("--design", help="an 'evstab design' folder: run its estimator exactly as exported "
                                      "(instead of --vehicle/--method)")
     sp.add_argument("--method", choices=METHODS, default="dakf", help="estimator")
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
-    sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
+    sp.add_argument("--map", "--channel-map", dest="channel_map",
+                    help="for a log with its own channels (.mf4, .mat, CSV): TOML naming the channel of each schema "
+                         "column (docs/formats.md)")
     sp.add_argument("--trust-units", action="store_true",
                     help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.add_argument("--no-monitor", action="store_true",
@@ -415,20 +453,45 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--mu", type=_positive, help="friction the reference assumes (default: the vehicle's)")
     sp.add_argument("--out", required=True, help="CSV of the ECU outputs to write")
     sp.add_argument("--inputs-out", help="also write the ECU input rows (for the exported evstab_replay harness)")
-    sp.add_argument("--channel-map", help="for an MDF4 log (.mf4): TOML naming the channel of each schema column")
+    sp.add_argument("--map", "--channel-map", dest="channel_map",
+                    help="for a log with its own channels (.mf4, .mat, CSV): TOML naming the channel of each schema "
+                         "column (docs/formats.md)")
     sp.add_argument("--trust-units", action="store_true",
                     help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.set_defaults(func=cmd_replay)
-    sp = sub.add_parser("convert", help="an MDF4 log (with a channel map), or an NMEA 0183 GNSS log and an IMU "
-                                        "CSV, to a drive-log CSV")
-    sp.add_argument("log", nargs="?", help="MDF4 log (.mf4) to convert (with --channel-map)")
-    sp.add_argument("--channel-map", help="TOML: the MDF channel, unit and scale of each schema column")
+    sp = sub.add_parser("convert", help="a log with its own channels (MDF4, MATLAB .mat, CSV; with a channel map), or "
+                                        "an NMEA 0183 GNSS log and an IMU CSV, to a drive-log CSV")
+    sp.add_argument("log", nargs="?", help="log to convert (.mf4, .mat, .csv; with --map)")
+    sp.add_argument("--map", "--channel-map", dest="channel_map",
+                    help="TOML: the channel, unit, scale and sign of each schema column, and the time base "
+                         "(docs/formats.md)")
     sp.add_argument("--nmea", help="NMEA 0183 log (RMC/VTG/GGA/GSA/HDT; checksums verified)")
     sp.add_argument("--imu", help="with --nmea: IMU CSV, the drive-log schema's columns without the GPS ones")
     sp.add_argument("--time-offset", type=_finite, default=0.0,
                     help="GPS time [s from 00:00 UTC] minus IMU time t (default 0: t is UTC seconds of day)")
     sp.add_argument("--out", required=True, help="drive-log CSV to write")
     sp.set_defaults(func=cmd_convert)
+    sp = sub.add_parser("emulate", help="production sensors on a reference log: a single-antenna GPS course and "
+                                        "speed, and a production gyro, drawn from the reference yaw rate and sideslip")
+    sp.add_argument("log", help="reference log (drive-log CSV with beta_true; or any file with --map)")
+    sp.add_argument("--map", "--channel-map", dest="channel_map", help="channel map for a log that is not a drive log")
+    sp.add_argument("--gps-rate", type=_positive, default=5.0, help="course fixes per second [Hz]")
+    sp.add_argument("--gps-offset", type=_nonneg, default=0.0, help="time of the first fix after the first row [s]")
+    sp.add_argument("--gps-velocity-noise", type=_nonneg, default=0.04,
+                    help="receiver velocity noise per axis at HDOP 1 [m/s]; course noise = this x HDOP / speed")
+    sp.add_argument("--gps-course-noise", type=_nonneg, default=0.0,
+                    help="a fixed course noise per fix instead [deg] (0: from the velocity noise)")
+    sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each fix when logged [s]")
+    sp.add_argument("--gyro", choices=["reference", "production"], default="reference",
+                    help="the log's yaw rate as it is, or a production sensor (default bias 3 mrad/s, scale +1 %%, "
+                         "noise 1.5 mrad/s)")
+    sp.add_argument("--gyro-bias", type=_finite, help="production gyro bias [rad/s]")
+    sp.add_argument("--gyro-scale", type=_finite, help="production gyro scale error [-] (0.01: reads 1 %% high)")
+    sp.add_argument("--gyro-noise", type=_nonneg, help="production gyro white noise per sample [rad/s]")
+    sp.add_argument("--gyro-quantum", type=_nonneg, help="production gyro resolution [deg/s] (a CAN signal's step)")
+    sp.add_argument("--seed", type=int, default=0, help="seed of the emulated noise")
+    sp.add_argument("--out", required=True, help="drive-log CSV to write (and OUT.emulation.json, what was emulated)")
+    sp.set_defaults(func=cmd_emulate)
     sp = sub.add_parser("export", help="export a design as firmware: C99, JSON gain set, A2L, CDFX")
     sp.add_argument("design_dir", help="an 'evstab design' folder")
     sp.add_argument("--format", choices=["c", "json", "a2l", "cdfx", "all"], default="all", help="what to write")

@@ -144,21 +144,21 @@ def _float(text: str, source: str, row: int, col: str, allow_empty: bool) -> flo
 
 
 def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_map=None) -> DriveLog:
-    """A drive log from ``.csv``, ``.csv.gz`` or an MDF4 file (``.mf4``/``.mdf``, with a channel map:
-    :mod:`toolkit.mdf`)."""
+    """A drive log from ``.csv`` or ``.csv.gz`` in the schema, or, through a channel map
+    (:mod:`toolkit.channels`), from an MDF4 file (``.mf4``/``.mdf``), a MATLAB file (``.mat``) or a CSV
+    table with its own column names."""
     name = str(path).lower()
-    if name.endswith((".mf4", ".mdf")):
-        if channel_map is None:
-            raise LogFormatError(f"{path}: an MDF log needs a channel map (--channel-map MAP.toml) that names "
-                                 f"the channel of each schema column")
-        from .mdf import read_mdf
-        log = read_mdf(path, channel_map)
+    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat")):
+        kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a MATLAB"
+        raise LogFormatError(f"{path}: {kind} log needs a channel map (--channel-map MAP.toml) that names "
+                             f"the channel of each schema column")
+    if channel_map is not None:
+        from .channels import read_mapped
+        log = read_mapped(path, channel_map)
         if columns is not None:
             keep = set(REQUIRED) | set(columns)
             log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
         return log
-    if channel_map is not None:
-        raise LogFormatError(f"{path}: --channel-map is for MDF logs (.mf4), this is read as CSV")
     return read_log_csv(path, columns)
 
 

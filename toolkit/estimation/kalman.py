@@ -105,6 +105,28 @@ KINEMATIC = Layout("kinematic path state", [
     Signal("ay_offset", "m/s^2", "the lateral accelerometer's offset in straight driving (road bank, bias)"),
 ])
 """The kinematic sideslip path's part of the filter state (:func:`_kinematic_blend`)."""
+KINEMATIC_LP = Layout("kinematic path state with the accelerometer's low-pass", list(KINEMATIC) + [
+    Signal("ay_lp1", "m/s^2", "the lateral acceleration through the first of two lags"),
+    Signal("ay_lp", "m/s^2", "... and through the second (the low-passed lateral acceleration)"),
+    Signal("dep_lp1", "m/s^2", "the signed departure from the model's lateral acceleration, first lag"),
+    Signal("dep_lp", "m/s^2", "... and second lag"),
+    Signal("rate_lp1", "rad/s", "the kinematic sideslip rate a_y / v - r (gyro less its bias), first lag"),
+    Signal("rate_lp", "rad/s", "... and second lag"),
+])
+"""The kinematic path's state where ``NoiseSettings.kinematic_ay_cutoff`` is set."""
+
+
+def lagged_drive(d: FilterDesign) -> bool:
+    """Whether the kinematic sideslip rate is the measured ``a_y / v - r`` through the accelerometer's
+    low-pass (``kinematic_ay_cutoff`` and ``kinematic_drive_lp``), instead of ``a_y / v`` less the yaw-rate
+    state."""
+    return bool(d.noise.kinematic_ay_cutoff > 0 and d.noise.kinematic_drive_lp > 0)
+
+
+def kinematic_layout(d: FilterDesign) -> Layout:
+    """The kinematic path's state layout of a design (:data:`KINEMATIC`, or :data:`KINEMATIC_LP` with the
+    accelerometer's low-pass)."""
+    return KINEMATIC_LP if d.noise.kinematic_ay_cutoff > 0 else KINEMATIC
 INIT_MAX = 60.0
 """Cap of the filter state's ``init`` entry (1 + seconds since the first fix)."""
 
@@ -116,7 +138,8 @@ def watches_bias(d: FilterDesign) -> bool:
 
 def layout(d: FilterDesign) -> Layout:
     """The parts of the flat filter state."""
-    return _layout(d.states, watches_bias(d), d.latency_samples, d.kinematic, adapts(d), weighs_prediction(d))
+    return _layout(d.states, watches_bias(d), d.latency_samples, kinematic_layout(d).size if d.kinematic else 0,
+                   adapts(d), weighs_prediction(d))
 
 
 def weighs_prediction(d: FilterDesign) -> bool:
@@ -131,7 +154,7 @@ def adapts(d: FilterDesign) -> bool:
 
 
 @lru_cache(maxsize=64)
-def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adaptive: bool,
+def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: int, adaptive: bool,
             weighs: bool) -> Layout:
     n = len(states)
     return Layout("filter state", [
@@ -143,7 +166,7 @@ def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: bool, adap
         Signal("gain", "-", "the gain of the last accepted fix", n),
         Signal("cusum", "-", "the gyro-bias CUSUM sums", 2 if cusum else 0),
         Signal("buf", "rad", "the predicted course of the last samples (latency)", nb),
-        Signal("kin", "-", "the kinematic path's state (KINEMATIC)", KINEMATIC.size if kinematic else 0),
+        Signal("kin", "-", "the kinematic path's state (KINEMATIC or KINEMATIC_LP)", kinematic),
         Signal("qscale", "-", "the process noise's innovation-adaptive scale", 1 if adaptive else 0),
         Signal("rcor", "-", "the accepted fixes' normalised innovations: the last, and the running means of "
                             "its products with the one before and of its square (residual prediction)",
@@ -258,7 +281,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
                 g, v_m, settled, zs.kin, o)
             E, Gu = _kinematic_transition(d, E, Gu, w_kin, dt, o)
         else:
-            A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
+            A, B, q, kin, kin_state, w_kin = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
     if not tabulated:
         E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
@@ -312,7 +335,23 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     else:
         r_c = nz.course_std**2
     if with_course:
-        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
+        cgate = None
+        if d.bias and (nz.bias_learn_rate_max > 0 or (kin is not None and nz.bias_consider_kinematic > 0)):
+            # the fixes tell a heading drift (the bias) from a sideslip drift only where the sideslip is
+            # pinned: by the model in calm driving, not by the kinematics; elsewhere the bias is a consider
+            # parameter (Schmidt: its row of the gain zeroed, the Joseph form kept)
+            learn = 1.0
+            if kin is not None and nz.bias_consider_kinematic > 0:
+                learn = learn * (1.0 - o.fmin(w_kin * 1e3, 1.0))
+            if nz.bias_learn_rate_max > 0:
+                ay_calm = g.ay
+                if kin is not None and nz.kinematic_ay_cutoff > 0:
+                    ay_calm = kinematic_layout(d).unpack(kin_state).ay_lp
+                learn = learn * (o.fabs(gyro - x[d.index("gyro_bias")]) < nz.bias_learn_rate_max) * \
+                    (o.fabs(ay_calm) < nz.bias_learn_ay_max)
+            eb = np.eye(n)[d.index("gyro_bias")]
+            cgate = _col(1.0 - eb, o) + _col(eb, o) * learn
+        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n, gate=cgate)
         nis = innov * innov / S
         resid = innov / o.sqrt(S)
         usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
@@ -488,8 +527,9 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
         for j in range(n):
             A[i, j] = A[i, j] * keep
         B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
-    A[ib, ir] = A[ib, ir] - w
-    return A, B, q, kin, state
+    if not lagged_drive(d):
+        A[ib, ir] = A[ib, ir] - w
+    return A, B, q, kin, state, w
 
 
 def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o):
@@ -509,7 +549,8 @@ def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o):
         for j in range(n):
             E[i, j] = E[i, j] * keep
         Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
-    E[ib, ir] = E[ib, ir] - w * dt
+    if not lagged_drive(d):
+        E[ib, ir] = E[ib, ir] - w * dt
     if "yaw" in d.states:
         E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w * dt
     return E, Gu
@@ -520,12 +561,28 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     ``a_row`` (continuous ``A``) and ``b_row`` (``B``); returns ``(w, q, kinematic drive, next state)``."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
-    ks = KINEMATIC.unpack(kin_state)
+    lay_k = kinematic_layout(d)
+    ks = lay_k.unpack(kin_state)
     ay, roll = _lateral_acceleration(d, g, ks, o)
     a_model = v_m * (_dot(_col(a_row, o), x, o) + b_row[0] * uin[0] + b_row[1] * uin[1] + x[ir])
-    dev = ks.dev + (o.fabs(ay - a_model) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
+    lp = {}
+    if nz.kinematic_ay_cutoff > 0:
+        # a vibrating body's accelerometer: two first-order lags (backward Euler, stable at any dt) on the
+        # lateral acceleration and on its signed departure from the model's, which the decisions read
+        alpha = g.dt / (g.dt + 1.0 / (2.0 * np.pi * nz.kinematic_ay_cutoff))
+        lp["ay_lp1"] = ks.ay_lp1 + alpha * (ay - ks.ay_lp1)
+        lp["ay_lp"] = ks.ay_lp + alpha * (lp["ay_lp1"] - ks.ay_lp)
+        lp["dep_lp1"] = ks.dep_lp1 + alpha * (ay - a_model - ks.dep_lp1)
+        lp["dep_lp"] = ks.dep_lp + alpha * (lp["dep_lp1"] - ks.dep_lp)
+        ay_seen, departure = lp["ay_lp"], lp["dep_lp"]
+        rate = ay / v_m - (g.yaw_rate - x[d.index("gyro_bias")])
+        lp["rate_lp1"] = ks.rate_lp1 + alpha * (rate - ks.rate_lp1)
+        lp["rate_lp"] = ks.rate_lp + alpha * (lp["rate_lp1"] - ks.rate_lp)
+    else:
+        ay_seen, departure = ay, ay - a_model
+    dev = ks.dev + (o.fabs(departure) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
     # peak hold with an exponential decay: rises with |a_y| at once, falls with kinematic_quiet_tau
-    level = o.fmax(o.fabs(ay), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
+    level = o.fmax(o.fabs(ay_seen), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
     w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
     # no tyre saturates while the car hardly accelerates sideways: the path lets go however far the
     # estimate's model departs (a sideslip error left by a slide would otherwise hold it on)
@@ -545,8 +602,11 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     e_b, e_r = np.eye(n)[ib], np.eye(n)[ir]
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
-    kin = _col(e_b, o) * (w * ay / v_m)
-    return w, q, kin, KINEMATIC.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset)
+    if lagged_drive(d):  # beta' = a_y / v - r from the measurements, both through the same lags
+        kin = _col(e_b, o) * (w * lp["rate_lp"])
+    else:
+        kin = _col(e_b, o) * (w * ay / v_m)
+    return w, q, kin, lay_k.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset, **lp)
 
 
 def _residual_correlation(d: FilterDesign, rcor, nu, accept, o):

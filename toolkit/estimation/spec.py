@@ -117,6 +117,8 @@ class NoiseSettings:
     """[rad/s] Standard deviation of ``d1`` at the start (the initial covariance)."""
     d2_init_std: float = 0.5
     """[rad/s^2] Standard deviation of ``d2`` at the start."""
+    bias_init_std: float = 0.01
+    """[rad/s] Standard deviation of the gyro bias at the start (the initial covariance)."""
     gyro_std: float = 0.004
     """Gyro white-noise standard deviation per sample [rad/s]."""
     course_std: float = np.deg2rad(0.15)
@@ -162,6 +164,21 @@ class NoiseSettings:
     kinematic_ay_quiet: float = 1.0
     """[m/s^2] Below this peak-held lateral acceleration the kinematic path is off, and it may be fully on
     from twice it (no tyre is saturated while the car hardly accelerates sideways)."""
+    kinematic_ay_cutoff: float = 0.0
+    """[Hz] The kinematic path's decisions read the lateral acceleration and its departure from the model's
+    through two first-order lags of this corner frequency (a vibrating body's accelerometer: the
+    Stanford GTI's reads ~4 m/s^2 of 40-100 Hz vibration); 0 = off (the readings as they come)."""
+    kinematic_drive_lp: float = 0.0
+    """1: the kinematic sideslip rate integrates the low-passed lateral acceleration too; 0: the reading."""
+    bias_consider_kinematic: float = 0.0
+    """1: while the kinematic path is on, the course fixes do not move the gyro-bias estimate (a consider
+    parameter there: the fixes cannot tell a sideslip drift from a heading drift)."""
+    bias_learn_rate_max: float = 0.0
+    """[rad/s] The course fixes move the gyro-bias estimate only while the yaw rate (gyro less bias) is below
+    this and the lateral acceleration below ``bias_learn_ay_max`` (0 = always): where the sideslip is pinned
+    by the model; elsewhere a model error's heading drift would be read as bias."""
+    bias_learn_ay_max: float = 2.0
+    """[m/s^2], see ``bias_learn_rate_max``."""
     kinematic_quiet_tau: float = 0.5
     """[s] Time constant with which that peak hold of ``|a_y|`` decays (a slide's ``a_y`` crosses zero
     between directions; the hold keeps the path on over the crossing)."""
@@ -298,7 +315,7 @@ class FilterDesign:
 
     def initial_covariance(self) -> np.ndarray:
         sd = {"beta": np.deg2rad(2.0), "yaw_rate": 0.05, "yaw": np.pi, "d1": self.noise.d1_init_std,
-              "d2": self.noise.d2_init_std, "gyro_bias": 0.01}
+              "d2": self.noise.d2_init_std, "gyro_bias": self.noise.bias_init_std}
         return np.diag([sd[s] ** 2 for s in self.states])
 
 

@@ -1,0 +1,257 @@
+"""Sideslip estimators on real measured drives, production sensors emulated on the reference.
+
+The drives are other groups' measurements with a reference sideslip (``--data DIR``, default
+``../shared/real``; they are not part of evstab and are read where they lie, through the channel maps
+in ``studies/maps/``):
+
+* ``stanford-gti``: Stanford Dynamic Design Lab's VW GTI at the limit, reference-INS body velocities
+  (``High_Speed``, ``Low_Speed`` at 200 Hz, ``High_Speed2`` at 1 kHz); no GNSS course in the files;
+* ``revsted-thi`` ADMA: ADMA G Pro+ INS at 100 Hz with its RTK receiver's course at 20 Hz (real);
+* ``revsted-thi`` OBD: production CAN signals at 50 Hz (a yaw-rate sensor quantised to 1.28 deg/s,
+  ABS wheel speeds, a right-positive accelerometer) with the Correvit sideslip; no GNSS.
+
+Where a drive has no course of its own, a single-antenna receiver is emulated from the reference
+(:mod:`toolkit.emulate`: course = integrated reference yaw rate + reference sideslip, 5 Hz, noise
+0.04 m/s x HDOP 1 over the speed), with the gyro as logged (``reference``) and a production gyro
+(``production``: 3 mrad/s bias, +1 % scale, 1.5 mrad/s noise), over :data:`SEEDS` noise seeds. The
+OBD sample's gyro is already a production one and stays as logged. Nominal models: the GTI's
+publishers' parameters; for ReV-StED, whose car is not named, a generic C-segment car.
+
+Per drive, gyro, seed and method: the sideslip error RMS and max [deg] from 5 s after the car first
+moves faster than 3 m/s, on samples above 3 m/s; the mean NIS of the course fixes used in that span;
+the share of those samples with |error| < 3 ``beta_std``. Beside the methods, ``course - gyro`` is the
+model-free line: the course minus the gyro integrated from the first row, held between fixes (it
+is told the heading at the first fix by the reference, which no estimator is). Cold starts: each GTI drive
+started at :data:`COLD_STARTS` random instants (seeded) with the default method; the time until the
+error stays below 1 deg for 1 s, and the share of samples inside 3 ``beta_std``.
+
+Outputs: ``real_drives.csv`` (one row per drive, gyro, seed and method), ``real_drives_table.md``
+(the docs' table: the worst seed of each cell), ``real_drives_readme.md`` (the README's line),
+``real_drives_cold.csv`` / ``real_drives_cold.md``.
+
+Run: ``python -m evstab.studies.real_drives OUT_DIR [--quick] [--data DIR]`` (quick: the first 30 s
+of High_Speed and the two ReV-StED samples, the default method and ``kf-bias``, one seed, no cold
+starts).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from evstab.plants import load_vehicle
+from evstab.studies._common import out_dir, pivot, write_markdown, write_table
+from evstab.toolkit.channels import load_channel_map, read_mapped
+from evstab.toolkit.emulate import PRODUCTION_GYRO, Emulation, emulate
+from evstab.toolkit.estimation import METHODS, design_filter, run_estimator
+from evstab.toolkit.estimation.spec import METHOD_COLUMNS
+
+MAPS = Path(__file__).resolve().parent / "maps"
+"""The channel maps and vehicle files of the datasets (documented examples of ``evstab convert --map``)."""
+SEEDS = (0, 1, 2)
+COLD_STARTS = 20
+SETTLE_DEG = 1.0
+SCORE_SPEED = 3.0
+SCORE_AFTER = 5.0
+DEFAULT = "dakf"
+QUICK_METHODS = ("dakf", "kf-bias")
+GTI = (("High_Speed", 200.0), ("Low_Speed", 200.0), ("High_Speed2", 1000.0))
+
+
+def data_dir(data=None) -> Path | None:
+    """The folder of the real drives: ``data``, else ``$EVSTAB_REAL_DATA``, else ``../shared/real`` from the
+    working directory or from the repository; None where none exists."""
+    cands = [data] if data is not None else [os.environ.get("EVSTAB_REAL_DATA"), Path.cwd().parent / "shared" / "real",
+                                             Path(__file__).resolve().parents[2] / "shared" / "real"]
+    for c in cands:
+        if c and Path(c).is_dir():
+            return Path(c)
+    return None
+
+
+def drives(data: Path, quick: bool = False) -> list[dict]:
+    """The reference logs: name, columns (with ``beta_true``), whether a course must be emulated, the nominal
+    vehicle, and whether the gyro is already a production one."""
+    out = []
+    gti = load_vehicle(MAPS / "stanford-gti-vehicle.toml")
+    generic = load_vehicle(MAPS / "revsted-vehicle.toml")
+    for name, rate in GTI[:1] if quick else GTI:
+        cmap = load_channel_map(MAPS / "stanford-gti.toml")
+        cmap["sample_rate"] = rate
+        cols = dict(read_mapped(data / "stanford-gti" / "raw" / f"{name}.mat", cmap).columns)
+        if quick:
+            cols = {k: v[: int(30 * rate)] for k, v in cols.items()}
+        out.append({"drive": f"GTI {name}", "cols": cols, "emulate": True, "vehicle": gti, "gyro_fixed": False})
+    adma = read_mapped(data / "revsted-thi" / "raw" / "ADMA_data_sample.csv", MAPS / "revsted-adma.toml").columns
+    out.append({"drive": "ReV-StED ADMA (RTK course)", "cols": dict(adma), "emulate": False, "vehicle": generic,
+                "gyro_fixed": True})
+    obd = read_mapped(data / "revsted-thi" / "raw" / "OBD_Sample.csv", MAPS / "revsted-obd.toml").columns
+    out.append({"drive": "ReV-StED OBD (CAN)", "cols": dict(obd), "emulate": True, "vehicle": generic,
+                "gyro_fixed": True})
+    return out
+
+
+def scored(cols) -> np.ndarray:
+    """The samples scored: from 5 s after the speed first passes 3 m/s, above 3 m/s."""
+    t, v = cols["t"], np.abs(cols["speed"])
+    moving = np.flatnonzero(v > SCORE_SPEED)
+    if not len(moving):
+        return np.zeros(len(t), bool)
+    return (t >= t[moving[0]] + SCORE_AFTER) & (v > SCORE_SPEED)
+
+
+def floor_estimate(cols) -> np.ndarray:
+    """The model-free line: course minus the log's gyro integrated, held between fixes; the integral starts at
+    the first fix from the heading the reference gives there (course less reference sideslip)."""
+    t, r, c = cols["t"], cols["yaw_rate"], cols["gps_course"]
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(t))])
+    fixes = np.flatnonzero(np.isfinite(c))
+    if len(fixes):
+        k = fixes[0]
+        yaw = yaw - yaw[k] + (c[k] - cols["beta_true"][k])
+    b = np.where(np.isfinite(c), c - yaw, np.nan)
+    idx = np.where(np.isfinite(b), np.arange(len(b)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    held = b[idx]
+    held[: np.argmax(np.isfinite(b))] = np.nan if not np.isfinite(b).any() else b[np.argmax(np.isfinite(b))]
+    return held
+
+
+def errors(cols, beta, beta_std=None, nis=None) -> dict:
+    sel = scored(cols)
+    e = np.degrees(beta - cols["beta_true"])[sel]
+    row = {"rms_deg": float(np.sqrt(np.mean(e ** 2))), "max_deg": float(np.abs(e).max())}
+    row["mean_nis"] = float(np.nanmean(nis[sel])) if nis is not None and np.isfinite(nis[sel]).any() else float("nan")
+    row["inside_3sd"] = float(np.mean(np.abs(beta - cols["beta_true"])[sel] < 3 * beta_std[sel])) \
+        if beta_std is not None and np.isfinite(beta_std[sel]).all() else float("nan")
+    return row
+
+
+def sensor_logs(drive: dict, seeds) -> list[tuple[str, int, dict]]:
+    """``(gyro, seed, columns)`` of a drive: emulated where it has no course of its own."""
+    if not drive["emulate"]:
+        return [("as logged", 0, drive["cols"])]
+    gyros = ("as logged",) if drive["gyro_fixed"] else ("reference", "production")
+    out = []
+    for gyro in gyros:
+        for seed in seeds:
+            kw = dict(PRODUCTION_GYRO) if gyro == "production" else {}
+            out.append((gyro, seed, emulate(drive["cols"], Emulation(seed=seed, **kw))))
+    return out
+
+
+def runnable(method: str, cols) -> str | None:
+    """Why ``method`` cannot run on ``cols`` (a column it needs is missing), or None."""
+    lacks = [c for c in METHOD_COLUMNS.get(method, ()) if not np.any(np.isfinite(cols.get(c, [np.nan])))]
+    return f"needs {', '.join(lacks)}" if lacks else None
+
+
+def main(out, quick: bool = False, data=None) -> list[dict]:
+    out = out_dir(out)
+    root = data_dir(data)
+    if root is None:
+        raise FileNotFoundError("no real-drive data: give --data DIR (the folder with stanford-gti/ and revsted-thi/) "
+                                "or set EVSTAB_REAL_DATA")
+    methods = QUICK_METHODS if quick else METHODS
+    seeds = SEEDS[:1] if quick else SEEDS
+    rows, skipped = [], {}
+    for drive in drives(root, quick):
+        for gyro, seed, cols in sensor_logs(drive, seeds):
+            log = {k: v for k, v in cols.items() if not k.endswith("_true")}
+            base = {"drive": drive["drive"], "gyro": gyro, "seed": seed}
+            rows.append({**base, "method": "course - gyro", **errors(cols, floor_estimate(cols))})
+            for m in methods:
+                why = runnable(m, cols)
+                if why:
+                    skipped[m] = why
+                    continue
+                est = run_estimator(design_filter(m, drive["vehicle"]), log, monitor=True)
+                flags = int(est["fault_gyro_stuck"].sum()) if "fault_gyro_stuck" in est.columns else 0
+                rows.append({**base, "method": m, **errors(cols, est["beta"], est["beta_std"], est["nis"]),
+                             "gyro_stuck_rows": flags})
+    for r in rows:
+        r.setdefault("gyro_stuck_rows", 0)
+    write_table(rows, out / "real_drives.csv", out / "real_drives.md")
+    worst: dict[tuple, dict] = {}
+    for r in rows:
+        w = worst.setdefault((r["drive"], r["gyro"], r["method"]), dict(r))
+        for k in ("rms_deg", "max_deg"):
+            w[k] = max(w[k], r[k])
+        w["mean_nis_max"] = float(np.fmax(w.get("mean_nis_max", np.nan), r["mean_nis"]))
+        w["mean_nis_min"] = float(np.fmin(w.get("mean_nis_min", np.nan), r["mean_nis"]))
+        w["inside_min"] = float(np.fmin(w.get("inside_min", np.nan), r["inside_3sd"]))
+
+    def cell(r):
+        nis = "-" if not np.isfinite(r["mean_nis_max"]) else (
+            f"{r['mean_nis_min']:.2f}" if r["mean_nis_min"] == r["mean_nis_max"] else
+            f"{r['mean_nis_min']:.2f}-{r['mean_nis_max']:.2f}")
+        inside = "-" if not np.isfinite(r["inside_min"]) else f"{100 * r['inside_min']:.0f} %"
+        return f"{r['rms_deg']:.2f} / {r['max_deg']:.2f} / {nis} / {inside}"
+
+    for w in worst.values():
+        w["drive_gyro"] = f"{w['drive']}, {w['gyro']} gyro" if w["gyro"] != "as logged" else w["drive"]
+    header, table = pivot(list(worst.values()), ["method"], "drive_gyro", cell)
+    if skipped:
+        table += [[m, *(f"not run: {why}" for _ in header[1:])] for m, why in skipped.items()]
+    write_markdown(out / "real_drives_table.md", header, table)
+    line = [w for w in worst.values() if w["method"] == DEFAULT]
+    header, table = pivot(line, ["method"], "drive_gyro", lambda r: f"{r['rms_deg']:.2f} / {r['max_deg']:.2f}")
+    write_markdown(out / "real_drives_readme.md", header, table)
+    if not quick:
+        cold = cold_starts(root)
+        write_table(cold, out / "real_drives_cold.csv")
+        by = {}
+        for r in cold:
+            by.setdefault(r["drive"], []).append(r)
+        write_markdown(out / "real_drives_cold.md", ["drive", "starts", "settled within 3 s", "slowest settle [s]",
+                                                     "inside 3 beta_std (worst start)"],
+                       [[d, len(rs), sum(r["settle_s"] <= 3.0 for r in rs), f"{max(r['settle_s'] for r in rs):.2f}",
+                         f"{100 * min(r['inside_3sd'] for r in rs):.0f} %"] for d, rs in by.items()])
+    return rows
+
+
+def cold_starts(root: Path, n: int = COLD_STARTS, seed: int = 0) -> list[dict]:
+    """The default method started at ``n`` random instants inside each GTI drive (production gyro, emulated
+    course of seed 0): the time until the error stays below :data:`SETTLE_DEG` for 1 s (inf: never)."""
+    rows = []
+    rng = np.random.default_rng(seed)
+    for drive in drives(root)[:len(GTI)]:
+        cols = emulate(drive["cols"], Emulation(seed=0, **PRODUCTION_GYRO))
+        t = cols["t"]
+        moving = t[np.abs(cols["speed"]) > SCORE_SPEED]
+        starts = rng.uniform(moving[0], t[-1] - 15.0, n)
+        d = design_filter(DEFAULT, drive["vehicle"])
+        for t0 in starts:
+            k0 = int(np.searchsorted(t, t0))
+            part = {k: v[k0:] for k, v in cols.items()}
+            part["t"] = part["t"] - part["t"][0]
+            est = run_estimator(d, {k: v for k, v in part.items() if not k.endswith("_true")}, monitor=True)
+            err = np.abs(np.degrees(est["beta"] - part["beta_true"]))
+            fast = np.abs(part["speed"]) > SCORE_SPEED
+            rows.append({"drive": drive["drive"], "start_s": float(t[k0]), "settle_s": settle_time(part["t"], err, fast),
+                         "inside_3sd": float(np.mean((np.abs(est["beta"] - part["beta_true"]) < 3 * est["beta_std"])[fast]))})
+    return rows
+
+
+def settle_time(t, err_deg, valid) -> float:
+    """The first time from which ``err_deg`` stays below :data:`SETTLE_DEG` for 1 s on the ``valid`` samples
+    (inf if never)."""
+    bad_t = t[(err_deg >= SETTLE_DEG) & valid]
+    nxt = np.searchsorted(bad_t, t, side="left")
+    next_bad = np.where(nxt < len(bad_t), bad_t[np.minimum(nxt, len(bad_t) - 1)], np.inf) if len(bad_t) else \
+        np.full(len(t), np.inf)
+    ok = np.flatnonzero((next_bad > t + 1.0) & (t + 1.0 <= t[-1]))
+    return float(t[ok[0]]) if len(ok) else float("inf")
+
+if __name__ == "__main__":
+    import sys
+    args = [a for a in sys.argv[1:] if a != "--quick"]
+    data = None
+    if "--data" in args:
+        i = args.index("--data")
+        data = args[i + 1]
+        del args[i:i + 2]
+    for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv, data=data):
+        print(row)
