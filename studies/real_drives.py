@@ -17,11 +17,11 @@ Where a drive has no course of its own, a single-antenna receiver is emulated fr
 OBD sample's gyro is already a production one and stays as logged. Nominal models: the GTI's
 publishers' parameters; for ReV-StED, whose car is not named, a generic C-segment car.
 
-Per drive, gyro, seed and method: the sideslip error RMS and max [deg] from 5 s after the car first
+Beside the methods, :data:`VARIANTS` (the full run). Per drive, gyro, seed and method: the sideslip error RMS and max [deg] from 5 s after the car first
 moves faster than 3 m/s, on samples above 3 m/s; the mean NIS of the course fixes used in that span;
 the share of those samples with |error| < 3 ``beta_std``. Beside the methods, ``course - gyro`` is the
-model-free line: the course minus the gyro integrated from the first row, held between fixes (it
-is told the heading at the first fix by the reference, which no estimator is). Cold starts: each GTI drive
+model-free line: the course minus the gyro integrated, held between fixes (it is told the heading at the
+first fix above 3 m/s by the reference, which no estimator is). Cold starts: each GTI drive
 started at :data:`COLD_STARTS` random instants (seeded) with the default method; the time until the
 error stays below 1 deg for 1 s, and the share of samples inside 3 ``beta_std``.
 
@@ -29,13 +29,13 @@ Outputs: ``real_drives.csv`` (one row per drive, gyro, seed and method), ``real_
 (the docs' table: the worst seed of each cell), ``real_drives_readme.md`` (the README's line),
 ``real_drives_cold.csv`` / ``real_drives_cold.md``.
 
-Run: ``python -m evstab.studies.real_drives OUT_DIR [--quick] [--data DIR]`` (quick: the first 30 s
-of High_Speed and the two ReV-StED samples, the default method and ``kf-bias``, one seed, no cold
-starts).
+Run: ``python -m evstab.studies.real_drives OUT_DIR [--quick] [--data DIR]`` (quick: 30 s of each GTI
+drive from 2 s before it first passes 3 m/s, the default method and ``kf-bias``, one seed, two cold starts per drive).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -46,7 +46,7 @@ from evstab.studies._common import out_dir, pivot, write_markdown, write_table
 from evstab.toolkit.channels import load_channel_map, read_mapped
 from evstab.toolkit.emulate import PRODUCTION_GYRO, Emulation, emulate
 from evstab.toolkit.estimation import METHODS, design_filter, run_estimator
-from evstab.toolkit.estimation.spec import METHOD_COLUMNS
+from evstab.toolkit.estimation.spec import METHOD_COLUMNS, estimation_noise
 
 MAPS = Path(__file__).resolve().parent / "maps"
 """The channel maps and vehicle files of the datasets (documented examples of ``evstab convert --map``)."""
@@ -57,6 +57,11 @@ SCORE_SPEED = 3.0
 SCORE_AFTER = 5.0
 DEFAULT = "dakf"
 QUICK_METHODS = ("dakf", "kf-bias")
+VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0})}
+"""Rows beside the methods: ``dakf`` without the accelerometer's low-pass (what a vibrating accelerometer does
+to the kinematic path)."""
+QUICK_SECONDS = 30.0
+"""The quick run's excerpt of each GTI drive, from 2 s before the car first passes 3 m/s."""
 GTI = (("High_Speed", 200.0), ("Low_Speed", 200.0), ("High_Speed2", 1000.0))
 
 
@@ -77,12 +82,14 @@ def drives(data: Path, quick: bool = False) -> list[dict]:
     out = []
     gti = load_vehicle(MAPS / "stanford-gti-vehicle.toml")
     generic = load_vehicle(MAPS / "revsted-vehicle.toml")
-    for name, rate in GTI[:1] if quick else GTI:
+    for name, rate in GTI:
         cmap = load_channel_map(MAPS / "stanford-gti.toml")
         cmap["sample_rate"] = rate
         cols = dict(read_mapped(data / "stanford-gti" / "raw" / f"{name}.mat", cmap).columns)
-        if quick:
-            cols = {k: v[: int(30 * rate)] for k, v in cols.items()}
+        if quick:  # from 2 s before the car first passes 3 m/s
+            k0 = max(int(np.argmax(np.abs(cols["speed"]) > SCORE_SPEED)) - int(2 * rate), 0)
+            cols = {k: v[k0:k0 + int(QUICK_SECONDS * rate)] for k, v in cols.items()}
+            cols["t"] = cols["t"] - cols["t"][0]
         out.append({"drive": f"GTI {name}", "cols": cols, "emulate": True, "vehicle": gti, "gyro_fixed": False})
     adma = read_mapped(data / "revsted-thi" / "raw" / "ADMA_data_sample.csv", MAPS / "revsted-adma.toml").columns
     out.append({"drive": "ReV-StED ADMA (RTK course)", "cols": dict(adma), "emulate": False, "vehicle": generic,
@@ -104,10 +111,11 @@ def scored(cols) -> np.ndarray:
 
 def floor_estimate(cols) -> np.ndarray:
     """The model-free line: course minus the log's gyro integrated, held between fixes; the integral starts at
-    the first fix from the heading the reference gives there (course less reference sideslip)."""
+    the first fix above 3 m/s from the heading the reference gives there (course less reference sideslip: a
+    reference sideslip at walking pace is the INS's noise)."""
     t, r, c = cols["t"], cols["yaw_rate"], cols["gps_course"]
     yaw = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(t))])
-    fixes = np.flatnonzero(np.isfinite(c))
+    fixes = np.flatnonzero(np.isfinite(c) & (np.abs(cols["speed"]) > SCORE_SPEED))
     if len(fixes):
         k = fixes[0]
         yaw = yaw - yaw[k] + (c[k] - cols["beta_true"][k])
@@ -154,7 +162,7 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
     if root is None:
         raise FileNotFoundError("no real-drive data: give --data DIR (the folder with stanford-gti/ and revsted-thi/) "
                                 "or set EVSTAB_REAL_DATA")
-    methods = QUICK_METHODS if quick else METHODS
+    methods = tuple(QUICK_METHODS if quick else METHODS)
     seeds = SEEDS[:1] if quick else SEEDS
     rows, skipped = [], {}
     for drive in drives(root, quick):
@@ -162,12 +170,15 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
             log = {k: v for k, v in cols.items() if not k.endswith("_true")}
             base = {"drive": drive["drive"], "gyro": gyro, "seed": seed}
             rows.append({**base, "method": "course - gyro", **errors(cols, floor_estimate(cols))})
-            for m in methods:
-                why = runnable(m, cols)
+            for m in methods + (() if quick else tuple(VARIANTS)):
+                method, noise = VARIANTS.get(m, (m, None))
+                why = runnable(method, cols)
                 if why:
-                    skipped[m] = why
+                    skipped[(drive["drive"], gyro, m)] = why
                     continue
-                est = run_estimator(design_filter(m, drive["vehicle"]), log, monitor=True)
+                if noise is not None:
+                    noise = dataclasses.replace(estimation_noise(), **noise)
+                est = run_estimator(design_filter(method, drive["vehicle"], noise), log, monitor=True)
                 flags = int(est["fault_gyro_stuck"].sum()) if "fault_gyro_stuck" in est.columns else 0
                 rows.append({**base, "method": m, **errors(cols, est["beta"], est["beta_std"], est["nis"]),
                              "gyro_stuck_rows": flags})
@@ -192,36 +203,37 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
 
     for w in worst.values():
         w["drive_gyro"] = f"{w['drive']}, {w['gyro']} gyro" if w["gyro"] != "as logged" else w["drive"]
-    header, table = pivot(list(worst.values()), ["method"], "drive_gyro", cell)
-    if skipped:
-        table += [[m, *(f"not run: {why}" for _ in header[1:])] for m, why in skipped.items()]
+    cells = list(worst.values())
+    for (drive, gyro, m), why in skipped.items():
+        cells.append({"method": m, "drive_gyro": f"{drive}, {gyro} gyro" if gyro != "as logged" else drive,
+                      "why": why})
+    header, table = pivot(cells, ["method"], "drive_gyro", lambda r: f"not run: {r['why']}" if "why" in r else cell(r))
     write_markdown(out / "real_drives_table.md", header, table)
     line = [w for w in worst.values() if w["method"] == DEFAULT]
     header, table = pivot(line, ["method"], "drive_gyro", lambda r: f"{r['rms_deg']:.2f} / {r['max_deg']:.2f}")
     write_markdown(out / "real_drives_readme.md", header, table)
-    if not quick:
-        cold = cold_starts(root)
-        write_table(cold, out / "real_drives_cold.csv")
-        by = {}
-        for r in cold:
-            by.setdefault(r["drive"], []).append(r)
-        write_markdown(out / "real_drives_cold.md", ["drive", "starts", "settled within 3 s", "slowest settle [s]",
-                                                     "inside 3 beta_std (worst start)"],
-                       [[d, len(rs), sum(r["settle_s"] <= 3.0 for r in rs), f"{max(r['settle_s'] for r in rs):.2f}",
-                         f"{100 * min(r['inside_3sd'] for r in rs):.0f} %"] for d, rs in by.items()])
+    cold = cold_starts(root, n=2 if quick else COLD_STARTS, quick=quick)
+    write_table(cold, out / "real_drives_cold.csv")
+    by = {}
+    for r in cold:
+        by.setdefault(r["drive"], []).append(r)
+    write_markdown(out / "real_drives_cold.md", ["drive", "starts", "settled within 3 s", "slowest settle [s]",
+                                                 "inside 3 beta_std (worst start)"],
+                   [[d, len(rs), sum(r["settle_s"] <= 3.0 for r in rs), f"{max(r['settle_s'] for r in rs):.2f}",
+                     f"{100 * min(r['inside_3sd'] for r in rs):.0f} %"] for d, rs in by.items()])
     return rows
 
 
-def cold_starts(root: Path, n: int = COLD_STARTS, seed: int = 0) -> list[dict]:
+def cold_starts(root: Path, n: int = COLD_STARTS, seed: int = 0, quick: bool = False) -> list[dict]:
     """The default method started at ``n`` random instants inside each GTI drive (production gyro, emulated
     course of seed 0): the time until the error stays below :data:`SETTLE_DEG` for 1 s (inf: never)."""
     rows = []
     rng = np.random.default_rng(seed)
-    for drive in drives(root)[:len(GTI)]:
+    for drive in drives(root, quick)[:len(GTI)]:
         cols = emulate(drive["cols"], Emulation(seed=0, **PRODUCTION_GYRO))
         t = cols["t"]
         moving = t[np.abs(cols["speed"]) > SCORE_SPEED]
-        starts = rng.uniform(moving[0], t[-1] - 15.0, n)
+        starts = rng.uniform(moving[0], t[-1] - (5.0 if quick else 15.0), n)
         d = design_filter(DEFAULT, drive["vehicle"])
         for t0 in starts:
             k0 = int(np.searchsorted(t, t0))

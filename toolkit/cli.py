@@ -84,15 +84,18 @@ def _loop_choice(args):
     return args.controller or "two-dof", ecu.filter, ecu
 
 
-def _check_log(log, args) -> None:
-    """Unit mistakes found by consistency (:func:`toolkit.logio.check_units`), and a log without a
-    usable GPS fix; ``--trust-units`` skips the unit checks."""
-    from .logio import check_units
+def _check_log(log, args, params=None) -> None:
+    """Unit mistakes found by consistency (:func:`toolkit.logio.check_units`; with the vehicle ``params`` also
+    :func:`toolkit.logio.check_steer`), and a log without a usable GPS fix; ``--trust-units`` skips the unit
+    checks."""
+    from .logio import check_steer, check_units
     if not np.any(np.isfinite(log["gps_course"])):
         raise EvstabError(f"{log.source}: no GPS fix (column 'gps_course' is empty on every row): nothing to "
                           "correct the gyro with; for a log made by 'evstab convert --nmea', check --time-offset")
     if not getattr(args, "trust_units", False):
         check_units(log)
+        if params is not None:
+            check_steer(log, params.wheelbase, params.understeer_gradient)
 
 
 def cmd_estimate(args) -> int:
@@ -112,7 +115,7 @@ def cmd_estimate(args) -> int:
     needed = ("yaw_moment", "gps_hdop", "gps_sats", "ay", "ax", "gps_speed", "gps_heading", "gps_time_fault",
               "roll_rate", "gps_roll")
     log = read_log(args.log, needed, args.channel_map).without_truth()
-    _check_log(log, args)
+    _check_log(log, args, p.as_nominal())
     from .estimation.spec import METHOD_COLUMNS
     lacks = [c for c in METHOD_COLUMNS.get(args.method, ()) if not np.any(np.isfinite(log.columns.get(c, [np.nan])))]
     if lacks:
@@ -162,7 +165,7 @@ def _replay(args):
 
     d, _ = ecu_from_design(args.design)
     log = read_log(args.log, LOG_COLUMNS, args.channel_map).without_truth()
-    _check_log(log, args)
+    _check_log(log, args, d.controller.params)
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
     prog = ecu_program(d)

@@ -282,6 +282,32 @@ def check_units(log: DriveLog) -> None:
                             f"is {ratio:.3g} (1 expected); '{col}' looks like {unit}, expected m/s")
 
 
+def check_steer(log: DriveLog, wheelbase: float, understeer: float = 0.0) -> None:
+    """A hand-wheel angle logged as ``steer`` (the road-wheel angle), found by consistency with the yaw rate:
+    in cornering well inside the tyres' linear range the road-wheel angle is the steady-state one,
+    ``(l / v + K v) r`` (wheelbase ``l``, understeer gradient ``K`` [rad per m/s^2],
+    :attr:`plants.VehicleParams.understeer_gradient`). The least-squares slope of
+    ``steer`` on it, over rows above 3 m/s with ``|r|`` above 0.02 rad/s and ``|a_y|`` (``v r`` where the log
+    has no ``ay``) below 3 m/s^2, is about 1 (a wrong nominal model moves it by tens of %); from 5 to 40 the
+    column holds the hand-wheel angle (steering ratios are 10-20). Judged on 200 such rows or more, and only
+    when the slope's standard error is below a tenth of it."""
+    t, v, r, steer = log["t"], np.abs(log["speed"]), log["yaw_rate"], log["steer"]
+    ay = log["ay"] if "ay" in log and np.any(np.isfinite(log["ay"])) else v * r
+    ok = (v > 3.0) & (np.abs(r) > 0.02) & (np.abs(ay) < 3.0) & np.isfinite(steer) & np.isfinite(ay)
+    if ok.sum() < 200:
+        return
+    x = (wheelbase / v[ok] + understeer * v[ok]) * r[ok]
+    y = steer[ok]
+    ss = float(np.dot(x, x))
+    slope = float(np.dot(x, y) / ss)
+    se = float(np.sqrt(np.sum((y - slope * x) ** 2) / (len(y) - 1) / ss))
+    if 5.0 < slope < 40.0 and se < 0.1 * slope:
+        raise LogFormatError(f"{log.source}: column 'steer': over {int(ok.sum())} rows of cornering the steer is "
+                             f"{slope:.3g} times the road-wheel angle the yaw rate and the vehicle's wheelbase "
+                             f"({wheelbase:g} m) give (1 expected); it looks like the hand-wheel angle, expected the "
+                             "front road-wheel angle (divide by the steering ratio; 'ratio' in a channel map)")
+
+
 _NEVER_EMPTY = ("t", "speed", "steer", "yaw_rate")
 
 

@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # reference tables (formats, layout, symbols, the list of files): not results
 REFERENCE = {
-    "formats.md": ("column|unit|required|possible range", "key|meaning [unit]|required|range"),
+    "formats.md": ("column|unit|required|possible range", "key|meaning [unit]|required|range", "key|meaning"),
     "layout.md": ("where|what",),
     "models.md": ("symbol|name in code|meaning|unit|sign", "plant|what it has"),
     "firmware.md": ("file|what",),

@@ -85,6 +85,7 @@ def _write(path, rows, col, f):
     ("gps_course", lambda c: np.pi / 2 - c, r"column 'gps_course'.*compass bearing \(clockwise from north\)"),
     ("gps_course", lambda c: 90.0 - np.degrees(c), r"column 'gps_course'.*degrees clockwise from north"),
     ("gps_course", np.degrees, r"column 'gps_course'.*looks like degrees, expected rad"),
+    ("steer", lambda d: 15.0 * d, r"column 'steer'.*15.* times the road-wheel angle.*looks like the hand-wheel angle"),
 ])
 def test_unit_mistakes_are_found_by_consistency(tmp_path, capsys, log_rows, col, f, message):
     import re
@@ -175,3 +176,21 @@ def test_two_processes_asking_for_one_library_build_it_once(tmp_path):
     assert outs[0] == outs[1] == str(cache / "evstab_race_test.so")
     assert (tmp_path / "writes.log").read_text().split() in (["1"], ["2"])
     assert sorted(f.name for f in cache.iterdir()) == ["evstab_race_test.so"]  # no lock or temporary left
+
+
+@pytest.mark.parametrize("k, refused", [(1.0, False), (4.9, False), (5.1, True), (39.0, True), (41.0, False)])
+def test_the_steer_check_at_its_bounds(k, refused):
+    """A steady turn whose steer is k times the steady-state road-wheel angle (l / v + K v) r: a hand-wheel
+    angle from k = 5 to 40 (steering ratios are 10-20); outside, no verdict."""
+    from evstab.toolkit.logio import DriveLog, LogFormatError, check_steer
+    p = load_vehicle("compact-ev")
+    n, v, r = 1000, 15.0, 0.1  # |a_y| = 1.5 m/s^2: inside the tyres' linear range
+    noise = 1e-5 * np.random.default_rng(0).standard_normal(n)  # a steer sensor's (the fit needs a spread)
+    steer = k * (p.wheelbase / v + p.understeer_gradient * v) * r + noise
+    log = DriveLog({"t": np.arange(n) * 1e-3, "speed": np.full(n, v), "yaw_rate": np.full(n, r), "steer": steer},
+                   "turn.csv")
+    if refused:
+        with pytest.raises(LogFormatError, match="turn.csv: column 'steer'"):
+            check_steer(log, p.wheelbase, p.understeer_gradient)
+    else:
+        check_steer(log, p.wheelbase, p.understeer_gradient)

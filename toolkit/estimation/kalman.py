@@ -106,6 +106,9 @@ KINEMATIC = Layout("kinematic path state", [
 ])
 """The kinematic sideslip path's part of the filter state (:func:`_kinematic_blend`)."""
 KINEMATIC_LP = Layout("kinematic path state with the accelerometer's low-pass", list(KINEMATIC) + [
+    Signal("ay_last", "m/s^2", "the last lateral acceleration read (its noise from the differences)"),
+    Signal("ay_noise", "m^2/s^4", "the accelerometer's white-noise variance per sample, half the mean squared "
+                                  "difference of successive readings"),
     Signal("ay_lp1", "m/s^2", "the lateral acceleration through the first of two lags"),
     Signal("ay_lp", "m/s^2", "... and through the second (the low-passed lateral acceleration)"),
     Signal("dep_lp1", "m/s^2", "the signed departure from the model's lateral acceleration, first lag"),
@@ -113,14 +116,7 @@ KINEMATIC_LP = Layout("kinematic path state with the accelerometer's low-pass", 
     Signal("rate_lp1", "rad/s", "the kinematic sideslip rate a_y / v - r (gyro less its bias), first lag"),
     Signal("rate_lp", "rad/s", "... and second lag"),
 ])
-"""The kinematic path's state where ``NoiseSettings.kinematic_ay_cutoff`` is set."""
-
-
-def lagged_drive(d: FilterDesign) -> bool:
-    """Whether the kinematic sideslip rate is the measured ``a_y / v - r`` through the accelerometer's
-    low-pass (``kinematic_ay_cutoff`` and ``kinematic_drive_lp``), instead of ``a_y / v`` less the yaw-rate
-    state."""
-    return bool(d.noise.kinematic_ay_cutoff > 0 and d.noise.kinematic_drive_lp > 0)
+"""The kinematic path's state where ``NoiseSettings.kinematic_ay_cutoff`` is set (:func:`_accel_low_pass`)."""
 
 
 def kinematic_layout(d: FilterDesign) -> Layout:
@@ -276,12 +272,12 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
         if tabulated:
             a_c, b_c = d.transition.continuous(rows, dyn, o)
-            w_kin, q, kin, kin_state = _kinematic_weight(
+            w_kin, q, kin, kin_state, lagged = _kinematic_weight(
                 d, [a_c.get((ib, j), 0.0) for j in range(n)], [b_c.get((ib, k), 0.0) for k in (0, 1)], q, x, uin,
                 g, v_m, settled, zs.kin, o)
-            E, Gu = _kinematic_transition(d, E, Gu, w_kin, dt, o)
+            E, Gu = _kinematic_transition(d, E, Gu, w_kin, dt, o, lagged)
         else:
-            A, B, q, kin, kin_state, w_kin = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
+            A, B, q, kin, kin_state = _kinematic_blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
     if not tabulated:
         E, Gam = discretize_delta(A, dt, o, n)
     if d.disturbance is not None:
@@ -335,23 +331,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     else:
         r_c = nz.course_std**2
     if with_course:
-        cgate = None
-        if d.bias and (nz.bias_learn_rate_max > 0 or (kin is not None and nz.bias_consider_kinematic > 0)):
-            # the fixes tell a heading drift (the bias) from a sideslip drift only where the sideslip is
-            # pinned: by the model in calm driving, not by the kinematics; elsewhere the bias is a consider
-            # parameter (Schmidt: its row of the gain zeroed, the Joseph form kept)
-            learn = 1.0
-            if kin is not None and nz.bias_consider_kinematic > 0:
-                learn = learn * (1.0 - o.fmin(w_kin * 1e3, 1.0))
-            if nz.bias_learn_rate_max > 0:
-                ay_calm = g.ay
-                if kin is not None and nz.kinematic_ay_cutoff > 0:
-                    ay_calm = kinematic_layout(d).unpack(kin_state).ay_lp
-                learn = learn * (o.fabs(gyro - x[d.index("gyro_bias")]) < nz.bias_learn_rate_max) * \
-                    (o.fabs(ay_calm) < nz.bias_learn_ay_max)
-            eb = np.eye(n)[d.index("gyro_bias")]
-            cgate = _col(1.0 - eb, o) + _col(eb, o) * learn
-        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n, gate=cgate)
+        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
         nis = innov * innov / S
         resid = innov / o.sqrt(S)
         usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
@@ -516,8 +496,8 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
     Returns ``(A, B, q, kinematic drive, next state per KINEMATIC)``."""
     n = d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
-    w, q, kin, state = _kinematic_weight(d, [A[ib, j] for j in range(n)], [B[ib, 0], B[ib, 1]], q, x, uin, g, v_m,
-                                         dyn, kin_state, o)
+    w, q, kin, state, lagged = _kinematic_weight(d, [A[ib, j] for j in range(n)], [B[ib, 0], B[ib, 1]], q, x, uin,
+                                                 g, v_m, dyn, kin_state, o)
     keep = 1.0 - w
     if o is not CASADI:
         A, B = A.copy(), B.copy()
@@ -527,12 +507,17 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
         for j in range(n):
             A[i, j] = A[i, j] * keep
         B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
-    if not lagged_drive(d):
-        A[ib, ir] = A[ib, ir] - w
-    return A, B, q, kin, state, w
+    # beta' takes -r from the yaw-rate state, except the share the low-passed measured rate carries
+    A[ib, ir] = A[ib, ir] - (w if _off(lagged) else w - lagged)
+    return A, B, q, kin, state
 
 
-def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o):
+def _off(lagged) -> bool:
+    """Whether a kinematic path's low-passed share is the number 0 (no low-pass in the design)."""
+    return isinstance(lagged, float) and lagged == 0.0
+
+
+def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=0.0):
     """:func:`_kinematic_blend` on a tabulated transition (:mod:`toolkit.estimation.transition`): the
     sideslip, yaw-rate and heading rows of ``E`` and ``G`` (the heading's through the yaw rate's)
     scaled by ``1 - w``, and what the kinematics alone give added: ``-w dt`` where ``beta'`` takes
@@ -549,8 +534,7 @@ def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o):
         for j in range(n):
             E[i, j] = E[i, j] * keep
         Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
-    if not lagged_drive(d):
-        E[ib, ir] = E[ib, ir] - w * dt
+    E[ib, ir] = E[ib, ir] - (w if _off(lagged) else w - lagged) * dt
     if "yaw" in d.states:
         E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w * dt
     return E, Gu
@@ -565,19 +549,9 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     ks = lay_k.unpack(kin_state)
     ay, roll = _lateral_acceleration(d, g, ks, o)
     a_model = v_m * (_dot(_col(a_row, o), x, o) + b_row[0] * uin[0] + b_row[1] * uin[1] + x[ir])
-    lp = {}
+    lp, share = {}, None
     if nz.kinematic_ay_cutoff > 0:
-        # a vibrating body's accelerometer: two first-order lags (backward Euler, stable at any dt) on the
-        # lateral acceleration and on its signed departure from the model's, which the decisions read
-        alpha = g.dt / (g.dt + 1.0 / (2.0 * np.pi * nz.kinematic_ay_cutoff))
-        lp["ay_lp1"] = ks.ay_lp1 + alpha * (ay - ks.ay_lp1)
-        lp["ay_lp"] = ks.ay_lp + alpha * (lp["ay_lp1"] - ks.ay_lp)
-        lp["dep_lp1"] = ks.dep_lp1 + alpha * (ay - a_model - ks.dep_lp1)
-        lp["dep_lp"] = ks.dep_lp + alpha * (lp["dep_lp1"] - ks.dep_lp)
-        ay_seen, departure = lp["ay_lp"], lp["dep_lp"]
-        rate = ay / v_m - (g.yaw_rate - x[d.index("gyro_bias")])
-        lp["rate_lp1"] = ks.rate_lp1 + alpha * (rate - ks.rate_lp1)
-        lp["rate_lp"] = ks.rate_lp + alpha * (lp["rate_lp1"] - ks.rate_lp)
+        lp, share, ay_seen, departure = _accel_low_pass(d, ks, g, ay, a_model, v_m, x, o)
     else:
         ay_seen, departure = ay, ay - a_model
     dev = ks.dev + (o.fabs(departure) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
@@ -602,11 +576,42 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     e_b, e_r = np.eye(n)[ib], np.eye(n)[ir]
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
-    if lagged_drive(d):  # beta' = a_y / v - r from the measurements, both through the same lags
-        kin = _col(e_b, o) * (w * lp["rate_lp"])
-    else:
-        kin = _col(e_b, o) * (w * ay / v_m)
-    return w, q, kin, lay_k.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset, **lp)
+    if share is None:
+        kin, lagged = _col(e_b, o) * (w * ay / v_m), 0.0
+    else:  # a noisy accelerometer: beta' = a_y / v - r from the measurements, both through the same lags
+        kin = _col(e_b, o) * ((w * ay / v_m) * (1.0 - share) + (w * share) * lp["rate_lp"])
+        lagged = w * share
+    return w, q, kin, lay_k.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset, **lp), lagged
+
+
+def _accel_low_pass(d: FilterDesign, ks, g, ay, a_model, v_m, x, o):
+    """What the kinematic path reads from a noisy accelerometer (``kinematic_ay_cutoff`` set).
+
+    The accelerometer's white noise is estimated from successive readings (half the mean squared
+    difference, through a lag of ``accel_noise_tau``). Where its standard deviation per sample is above
+    ``accel_noise_on``, the path's decisions (the departure from the model's lateral acceleration, signed,
+    and the peak-held level) and the kinematic sideslip rate ``a_y / v - r`` (gyro less its bias) go through
+    two first-order lags of corner frequency ``kinematic_ay_cutoff`` (backward Euler: stable at any sample
+    rate), fully from ``accel_noise_full``. Lagging the rate as a whole keeps the accelerometer and the gyro
+    in step. A vibrating body's accelerometer (the Stanford GTI's: ~4 m/s^2 per sample at 40-100 Hz)
+    would otherwise hold the path on; a quiet one (0.05 m/s^2) leaves the readings as they are, to the bit.
+    Returns ``(next low-pass states, share of the low-passed signals, level signal, departure)``."""
+    nz = d.noise
+    diff = ay - ks.ay_last
+    noise = ks.ay_noise + (0.5 * diff * diff - ks.ay_noise) * o.fmin(g.dt / nz.accel_noise_tau, 1.0)
+    sd = o.sqrt(o.fmax(noise, 0.0))
+    share = o.fmin(o.fmax((sd - nz.accel_noise_on) / (nz.accel_noise_full - nz.accel_noise_on), 0.0), 1.0)
+    alpha = g.dt / (g.dt + 1.0 / (2.0 * np.pi * nz.kinematic_ay_cutoff))
+    lp = {"ay_last": ay, "ay_noise": noise}
+    lp["ay_lp1"] = ks.ay_lp1 + alpha * (ay - ks.ay_lp1)
+    lp["ay_lp"] = ks.ay_lp + alpha * (lp["ay_lp1"] - ks.ay_lp)
+    lp["dep_lp1"] = ks.dep_lp1 + alpha * (ay - a_model - ks.dep_lp1)
+    lp["dep_lp"] = ks.dep_lp + alpha * (lp["dep_lp1"] - ks.dep_lp)
+    rate = ay / v_m - (g.yaw_rate - x[d.index("gyro_bias")] if d.bias else g.yaw_rate)
+    lp["rate_lp1"] = ks.rate_lp1 + alpha * (rate - ks.rate_lp1)
+    lp["rate_lp"] = ks.rate_lp + alpha * (lp["rate_lp1"] - ks.rate_lp)
+    departure = ay - a_model
+    return lp, share, ay + share * (lp["ay_lp"] - ay), departure + share * (lp["dep_lp"] - departure)
 
 
 def _residual_correlation(d: FilterDesign, rcor, nu, accept, o):

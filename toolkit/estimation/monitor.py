@@ -30,7 +30,9 @@ row, named in :data:`FLAGS`:
     from the course fixes. A working MEMS gyro's noise (~0.004 rad/s) is hundreds of its
     quantisation steps, so even a few equal samples in a row do not happen; a logger
     holding a slower gyro's samples repeats values for one sensor period, far below
-    the 50 ms default.
+    the 50 ms default. A quantised signal (steps never below ``quantised_step``: a CAN yaw
+    rate) holds its value while the car turns steadily: it counts as stuck only when the lateral
+    acceleration over the speed leaves the held value (:func:`gyro_stuck`).
 ``fault_gyro_bias``
     the filter's bias CUSUM alarmed (see :func:`toolkit.estimation.kalman._bias_watch`) and
     reopened the gyro-bias variance.
@@ -59,6 +61,19 @@ class MonitorSettings:
     gyro_stuck_time: float = 0.05
     """[s] exactly repeated gyro samples for this long count as a stuck gyro."""
     gyro_stuck_samples: int = 5
+    quantised_step: float = 1e-3
+    """[rad/s] A gyro signal whose steps are never smaller than this (0.057 deg/s) is a quantised one (a CAN
+    signal's resolution): it may hold one value while the car turns steadily."""
+    quantised_margin: float = 1.0
+    """[m/s^2] A quantised gyro is stuck when the lateral acceleration leaves ``v`` times its held value by
+    ``v`` times two steps plus this (steady cornering: ``a_y = v r``; the margin covers ``v`` times the
+    sideslip rate, the body's roll and the accelerometer's errors) ..."""
+    quantised_stuck_time: float = 0.3
+    """[s] ... for this long ..."""
+    quantised_min_speed: float = 3.0
+    """[m/s] ... above this speed ..."""
+    quantised_hold_max: float = 2.0
+    """[s] ... or, in a log without ``ay``, when it holds a value this long."""
     speed_jump: float = 15.0
     """[m/s^2] a speed reading falling faster than this (1.5 g, beyond any tire's grip) is not the car."""
     dropout_speed: float = 2.0
@@ -77,7 +92,8 @@ class MonitorSettings:
 
     def __post_init__(self) -> None:
         for name in ("gyro_stuck_time", "speed_jump", "dropout_speed", "zero_speed", "gps_moving",
-                     "resume_tolerance", "gps_min_speed", "spike_nis"):
+                     "resume_tolerance", "gps_min_speed", "spike_nis", "quantised_step", "quantised_margin",
+                     "quantised_stuck_time", "quantised_min_speed", "quantised_hold_max"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise SettingsError(f"monitor setting '{name}' must be a finite number > 0, got {v!r}")
@@ -103,17 +119,58 @@ def _runs(eq: np.ndarray):
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
-def gyro_stuck(t: np.ndarray, gyro: np.ndarray, s: MonitorSettings) -> np.ndarray:
-    """Rows flagged as a stuck gyro (see the module docstring); causal."""
+def gyro_quantum(gyro: np.ndarray) -> np.ndarray:
+    """The gyro signal's resolution as seen up to each row (causal): the smallest nonzero step between
+    successive readings so far (inf before the first step). A MEMS gyro's noise makes it tiny; a CAN
+    signal's resolution (ReV-StED's yaw rate: 1.28 deg/s) shows as a floor under every step."""
+    step = np.abs(np.diff(gyro, prepend=gyro[:1]))
+    step[step == 0] = np.inf
+    return np.minimum.accumulate(step)
+
+
+def gyro_stuck(t: np.ndarray, gyro: np.ndarray, s: MonitorSettings, ay=None, speed=None) -> np.ndarray:
+    """Rows flagged as a stuck gyro (see the module docstring); causal.
+
+    A signal with a resolution of ``quantised_step`` or more (:func:`gyro_quantum`; a log that starts in a
+    held value counts as one) holds one value for as long as the yaw rate stays inside one step: there a
+    held value ``g`` of resolution ``q`` is stuck only once the lateral acceleration leaves ``v g`` (steady
+    cornering) by ``2 q v + quantised_margin`` for ``quantised_stuck_time`` above ``quantised_min_speed``,
+    or, in a log without ``ay``, after ``quantised_hold_max``.
+    """
     n = len(gyro)
     flag = np.zeros(n, bool)
     if n < 2:
         return flag
     same = np.zeros(n, bool)
     same[1:] = gyro[1:] == gyro[:-1]  # row k repeats row k - 1
+    quantum = gyro_quantum(gyro)
+    have_ay = ay is not None and speed is not None
+    if have_ay:
+        v = np.asarray(speed, float)
+        ay = np.asarray(ay, float)
     starts, ends = _runs(same)
     for a, b in zip(starts, ends):
         first = a - 1  # the run of equal values begins one row earlier
+        q = quantum[first]
+        if q >= s.quantised_step:  # inf: no step seen yet (a log that starts in a held value), judged the same way
+            q = q if np.isfinite(q) else s.quantised_step
+            if not have_ay:
+                k = first + int(np.searchsorted(t[first:b] - t[first], s.quantised_hold_max - 1e-12))
+                if k < b:
+                    flag[k:b] = True
+                continue
+            # in the acceleration the car has: a_y against v times the held rate, two steps and the margin apart
+            vv = v[first:b]
+            off = (np.abs(vv) > s.quantised_min_speed) & (
+                np.abs(ay[first:b] - vv * gyro[first]) > 2.0 * q * np.abs(vv) + s.quantised_margin)  # NaN: not off
+            o_starts, o_ends = _runs(off)
+            for oa, ob in zip(o_starts, o_ends):
+                k = first + oa + int(np.searchsorted(t[first + oa:first + ob] - t[first + oa],
+                                                     s.quantised_stuck_time - 1e-12))
+                if k < first + ob:
+                    flag[k:b] = True
+                    break
+            continue
         # flagged from the row at which both the time and the sample count are reached
         k_time = first + int(np.searchsorted(t[first:b] - t[first], s.gyro_stuck_time - 1e-12))
         k = max(first + int(s.gyro_stuck_samples) - 1, k_time)
@@ -218,7 +275,7 @@ def screen(cols: dict, settings: MonitorSettings | None = None) -> Screened:
         out["gps_course"] = np.where(frozen, np.nan, course)
     if "gps_time_fault" in cols:
         flags["fault_gps_time"][:] = np.nan_to_num(np.asarray(cols["gps_time_fault"], float)) > 0.5
-    stuck = gyro_stuck(t, np.asarray(cols["yaw_rate"], float), s)
+    stuck = gyro_stuck(t, np.asarray(cols["yaw_rate"], float), s, cols.get("ay"), cols.get("speed"))
     flags["fault_gyro_stuck"][:] = stuck
     drop, v = speed_dropout(t, np.asarray(cols["speed"], float), s, cols.get("ax"),
                             cols.get("gps_speed"))

@@ -117,8 +117,6 @@ class NoiseSettings:
     """[rad/s] Standard deviation of ``d1`` at the start (the initial covariance)."""
     d2_init_std: float = 0.5
     """[rad/s^2] Standard deviation of ``d2`` at the start."""
-    bias_init_std: float = 0.01
-    """[rad/s] Standard deviation of the gyro bias at the start (the initial covariance)."""
     gyro_std: float = 0.004
     """Gyro white-noise standard deviation per sample [rad/s]."""
     course_std: float = np.deg2rad(0.15)
@@ -165,20 +163,16 @@ class NoiseSettings:
     """[m/s^2] Below this peak-held lateral acceleration the kinematic path is off, and it may be fully on
     from twice it (no tyre is saturated while the car hardly accelerates sideways)."""
     kinematic_ay_cutoff: float = 0.0
-    """[Hz] The kinematic path's decisions read the lateral acceleration and its departure from the model's
-    through two first-order lags of this corner frequency (a vibrating body's accelerometer: the
-    Stanford GTI's reads ~4 m/s^2 of 40-100 Hz vibration); 0 = off (the readings as they come)."""
-    kinematic_drive_lp: float = 0.0
-    """1: the kinematic sideslip rate integrates the low-passed lateral acceleration too; 0: the reading."""
-    bias_consider_kinematic: float = 0.0
-    """1: while the kinematic path is on, the course fixes do not move the gyro-bias estimate (a consider
-    parameter there: the fixes cannot tell a sideslip drift from a heading drift)."""
-    bias_learn_rate_max: float = 0.0
-    """[rad/s] The course fixes move the gyro-bias estimate only while the yaw rate (gyro less bias) is below
-    this and the lateral acceleration below ``bias_learn_ay_max`` (0 = always): where the sideslip is pinned
-    by the model; elsewhere a model error's heading drift would be read as bias."""
-    bias_learn_ay_max: float = 2.0
-    """[m/s^2], see ``bias_learn_rate_max``."""
+    """[Hz] Corner frequency of the two first-order lags through which the kinematic path reads a noisy
+    accelerometer (:func:`toolkit.estimation.kalman._accel_low_pass`); 0 = no low-pass (the readings as
+    they come, whatever their noise)."""
+    accel_noise_on: float = 0.3
+    """[m/s^2] Estimated accelerometer noise (standard deviation per sample) above which the low-passed
+    signals start to take over ..."""
+    accel_noise_full: float = 0.6
+    """[m/s^2] ... and at which they have taken over."""
+    accel_noise_tau: float = 1.0
+    """[s] Lag of the accelerometer-noise estimate."""
     kinematic_quiet_tau: float = 0.5
     """[s] Time constant with which that peak hold of ``|a_y|`` decays (a slide's ``a_y`` crosses zero
     between directions; the hold keeps the path on over the crossing)."""
@@ -269,6 +263,11 @@ class NoiseSettings:
                              f"{self.residual_corr_fixes!r}")
         if not self.residual_corr_min < 1:
             raise ModelError(f"noise setting 'residual_corr_min' must be < 1, got {self.residual_corr_min!r}")
+        if self.accel_noise_full <= self.accel_noise_on:
+            raise ModelError(f"noise setting 'accel_noise_full' ({self.accel_noise_full!r}) must be above "
+                             f"'accel_noise_on' ({self.accel_noise_on!r})")
+        if self.accel_noise_tau <= 0:
+            raise ModelError(f"noise setting 'accel_noise_tau' must be > 0 s, got {self.accel_noise_tau!r}")
         if self.disturbance_tau <= 0:
             raise ModelError(f"noise setting 'disturbance_tau' must be > 0 s, got {self.disturbance_tau!r}")
 
@@ -315,7 +314,7 @@ class FilterDesign:
 
     def initial_covariance(self) -> np.ndarray:
         sd = {"beta": np.deg2rad(2.0), "yaw_rate": 0.05, "yaw": np.pi, "d1": self.noise.d1_init_std,
-              "d2": self.noise.d2_init_std, "gyro_bias": self.noise.bias_init_std}
+              "d2": self.noise.d2_init_std, "gyro_bias": 0.01}
         return np.diag([sd[s] ** 2 for s in self.states])
 
 
@@ -336,7 +335,9 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     noise that keeps the course innovations consistent where the model is right (mean NIS inside its
     interval on evstab's own logs, every bundled vehicle), and innovation-adaptive scaling of it
     (``adapt_rate``) where the model is wrong; the kinematic path engages at a smaller departure than
-    the ECU's, through a shorter lag (0.4 -> 0.8 m/s^2, 0.1 s, against 0.5 -> 1.0 m/s^2, 0.15 s)."""
+    the ECU's, through a shorter lag (0.4 -> 0.8 m/s^2, 0.1 s, against 0.5 -> 1.0 m/s^2, 0.15 s), and it
+    reads a vibrating accelerometer through a 5 Hz low-pass (``kinematic_ay_cutoff``; a quiet one as it
+    comes)."""
     s = sensors if sensors is not None else SensorConfig()
     q_d1, q_d2, tau = 8e-5, 4e-5, NoiseSettings.disturbance_tau
     # the disturbances start with the stationary spread of their Gauss-Markov processes, q tau / 2: a wider
@@ -345,7 +346,7 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
                          q_yaw_rate=2.3e-4, q_yaw_rate_held=1.0, q_d1=q_d1, q_d2=q_d2, q_bias=5e-8,
                          d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
                          adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1,
-                         disturbance_chi2_on=2.0, disturbance_chi2_full=6.0)
+                         kinematic_ay_cutoff=5.0, disturbance_chi2_on=2.0, disturbance_chi2_full=6.0)
 
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,

@@ -1,0 +1,49 @@
+"""The real-drives study on excerpts of the measured logs in ``../shared/real`` (skipped, with the reason,
+where the folder is absent: a user's clone; CI has it)."""
+
+import numpy as np
+import pytest
+
+from evstab.studies import real_drives
+
+DATA = real_drives.data_dir()
+pytestmark = pytest.mark.skipif(DATA is None, reason="no real-drive data: ../shared/real (or $EVSTAB_REAL_DATA) is "
+                                                     "absent; the datasets are other groups' and not in the repository")
+
+
+@pytest.fixture(scope="module")
+def rows(tmp_path_factory):
+    out = tmp_path_factory.mktemp("real")
+    return out, {(r["drive"], r["gyro"], r["method"]): r for r in real_drives.main(out, quick=True, data=DATA)}
+
+
+def test_tables_are_written(rows):
+    out, _ = rows
+    for name in ("real_drives.csv", "real_drives_table.md", "real_drives_readme.md"):
+        assert (out / name).stat().st_size > 0
+    table = (out / "real_drives_table.md").read_text()
+    assert "course - gyro" in table and "GTI High_Speed, production gyro" in table
+    from evstab.studies.publish import check_study
+    assert not check_study("real_drives", out)  # the docs' blocks: the same files, the same columns
+
+
+def test_the_default_filter_holds_on_the_gti_excerpt(rows):
+    """The first 30 s of High_Speed (a race track at 13.6-32 m/s, the car moving from the first row). Read raw,
+    the GTI's vibrating accelerometer held the kinematic path on: 1.21 deg RMS with the reference gyro and a mean
+    NIS of 0.005 (the course innovations 14x smaller than predicted). Through the low-pass: 0.49 deg, NIS 0.54;
+    0.41 deg, NIS 0.83 with the production gyro."""
+    _, r = rows
+    for gyro in ("reference", "production"):
+        row = r[("GTI High_Speed", gyro, "dakf")]
+        assert row["rms_deg"] < 0.8, row  # 0.49 / 0.41 measured; the raw accelerometer's 1.21 fails it
+        assert 0.3 < row["mean_nis"] < 3.0, row  # 0.54 / 0.83; raw 0.005
+        assert np.isfinite(row["max_deg"])
+
+
+def test_revsted_samples(rows):
+    """The ADMA sample's real RTK course (20 Hz, repeated on its 100 Hz rows: one fix per epoch) and the OBD
+    sample's CAN yaw rate, quantised in 1.28 deg/s steps: held between steps while the car turns, which the
+    monitor no longer calls a stuck gyro (650 of 999 rows were flagged)."""
+    _, r = rows
+    assert r[("ReV-StED ADMA (RTK course)", "as logged", "dakf")]["rms_deg"] < 0.35  # 0.26 measured
+    assert r[("ReV-StED OBD (CAN)", "as logged", "dakf")]["gyro_stuck_rows"] == 0
