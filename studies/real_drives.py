@@ -57,9 +57,11 @@ SCORE_SPEED = 3.0
 SCORE_AFTER = 5.0
 DEFAULT = "dakf"
 QUICK_METHODS = ("dakf", "kf-bias")
-VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0})}
+VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0}),
+            "dakf, over-prediction only": ("dakf", {"kinematic_overpredict": 1.0})}
 """Rows beside the methods: ``dakf`` without the accelerometer's low-pass (what a vibrating accelerometer does
-to the kinematic path)."""
+to the kinematic path), and with the kinematic path engaged only where the model over-predicts the lateral
+acceleration (``NoiseSettings.kinematic_overpredict``)."""
 QUICK_SECONDS = 30.0
 """The quick run's excerpt of each GTI drive, from 2 s before the car first passes 3 m/s."""
 GTI = (("High_Speed", 200.0), ("Low_Speed", 200.0), ("High_Speed2", 1000.0))

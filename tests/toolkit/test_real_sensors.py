@@ -133,3 +133,41 @@ def test_a_held_quantised_value_is_stuck_when_ay_leaves_it(excess, flagged):
         first = np.flatnonzero(flag)[0]
         assert t[first] == pytest.approx(t[150] + s.quantised_stuck_time, abs=1e-9)
         assert flag[first:].all()
+
+
+@pytest.mark.parametrize("ay, model, plain, overpredict", [
+    (4.0, 5.0, 1.0, 1.0),     # the model asks 1 m/s^2 more than the car has: a tyre beyond its linear range
+    (5.0, 4.0, 1.0, 0.0),     # the car has more than the model asks: no tyre gives more than its linear force
+    (-4.0, -5.0, 1.0, 1.0),   # the same to the right
+    (-5.0, -4.0, 1.0, 0.0),
+    (-1.0, 2.0, 3.0, 3.0),    # the two disagree in sign: the whole departure
+    (0.0, 0.5, 0.5, 0.5),     # straight ahead (0 is of either sign): what the model asks
+])
+def test_saturation_evidence(ay, model, plain, overpredict):
+    from evstab.toolkit.estimation.kalman import saturation_evidence
+    p = load_vehicle("compact-ev")
+    off = design_filter("dakf", p)
+    on = design_filter("dakf", p, dataclasses.replace(estimation_noise(), kinematic_overpredict=1.0))
+    assert saturation_evidence(off, ay, ay - model) == pytest.approx(plain, abs=1e-15)
+    assert saturation_evidence(on, ay, ay - model) == pytest.approx(overpredict, abs=1e-15)
+
+
+def test_overprediction_only_ignores_a_stiffness_set_too_low():
+    """With the nominal cornering stiffness 40 % low the linear model asks less lateral acceleration than the car
+    has in a 4.8 m/s^2 lane change at 80 km/h: the plain departure engages the kinematic path (the estimate moves
+    by up to 0.92 deg from the filter without the path), over-prediction only hardly does (0.0066 deg, in the
+    transients where the estimate's model leads). Here the engagement helped: 0.101 deg RMS with the plain
+    departure, 0.143 with over-prediction only, 0.143 without the path; what the setting costs a car whose
+    model is too soft."""
+    p = load_vehicle("compact-ev")
+    low = dataclasses.replace(p, cornering_stiffness_front=0.6 * p.cornering_stiffness_front,
+                              cornering_stiffness_rear=0.6 * p.cornering_stiffness_rear)
+    log = simulate(p, "two-track", make_maneuver("sine-lane-change", p, 80 / 3.6, np.radians(2.2)), seed=1).log_columns()
+    cols = {k: v for k, v in log.items() if not k.endswith("_true")}
+    nz = estimation_noise()
+    beta = {name: run_estimator(design_filter("dakf", low, n, nominal=False, kinematic=kin), cols)["beta"]
+            for name, n, kin in (("plain", nz, None), ("over", dataclasses.replace(nz, kinematic_overpredict=1.0), None),
+                                 ("none", nz, False))}
+    assert np.max(np.abs(log["ay_true"])) > 4.0  # a lane change that asks for it (4.76 m/s^2)
+    assert np.degrees(np.abs(beta["plain"] - beta["none"]).max()) > 0.5  # 0.92 deg: the plain departure engaged
+    assert np.degrees(np.abs(beta["over"] - beta["none"]).max()) < 0.02  # 0.0066 deg: over-prediction hardly

@@ -554,7 +554,7 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
         lp, share, ay_seen, departure = _accel_low_pass(d, ks, g, ay, a_model, v_m, x, o)
     else:
         ay_seen, departure = ay, ay - a_model
-    dev = ks.dev + (o.fabs(departure) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
+    dev = ks.dev + (saturation_evidence(d, ay_seen, departure, o) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
     # peak hold with an exponential decay: rises with |a_y| at once, falls with kinematic_quiet_tau
     level = o.fmax(o.fabs(ay_seen), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
     w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
@@ -582,6 +582,20 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
         kin = _col(e_b, o) * ((w * ay / v_m) * (1.0 - share) + (w * share) * lp["rate_lp"])
         lagged = w * share
     return w, q, kin, lay_k.pack(o=o, dev=dev, ay_level=level, roll=roll, ay_offset=offset, **lp), lagged
+
+
+def saturation_evidence(d: FilterDesign, ay, departure, o=NUMPY):
+    """What the kinematic path's departure reads at a measured lateral acceleration ``ay`` and its departure
+    ``ay - a_model`` from the linear model's: ``|departure|``; with ``kinematic_overpredict``, only what the
+    model asks beyond the measurement, ``|a_model| - |ay|`` where the two have one sign (0 where the
+    measurement exceeds the model: no tyre gives more than its linear force), ``|departure|`` where they
+    disagree in sign."""
+    dep = o.fabs(departure)
+    if d.noise.kinematic_overpredict <= 0:
+        return dep
+    model = ay - departure
+    same = model * ay >= 0.0
+    return same * o.fmax(o.fabs(model) - o.fabs(ay), 0.0) + (1.0 - same) * dep
 
 
 def _accel_low_pass(d: FilterDesign, ks, g, ay, a_model, v_m, x, o):

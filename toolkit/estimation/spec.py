@@ -166,6 +166,11 @@ class NoiseSettings:
     """[Hz] Corner frequency of the two first-order lags through which the kinematic path reads a noisy
     accelerometer (:func:`toolkit.estimation.kalman._accel_low_pass`); 0 = no low-pass (the readings as
     they come, whatever their noise)."""
+    kinematic_overpredict: float = 0.0
+    """1: the kinematic path counts a departure only where the linear model asks more lateral acceleration
+    than the car has (a tyre beyond its linear range gives less force than the model, never more), or the two
+    disagree in sign; a measured lateral acceleration above the model's (a stiffness set too low, a sideslip
+    error the path left) does not engage it. 0 (default): any departure."""
     accel_noise_on: float = 0.3
     """[m/s^2] Estimated accelerometer noise (standard deviation per sample) above which the low-passed
     signals start to take over ..."""
@@ -263,6 +268,8 @@ class NoiseSettings:
                              f"{self.residual_corr_fixes!r}")
         if not self.residual_corr_min < 1:
             raise ModelError(f"noise setting 'residual_corr_min' must be < 1, got {self.residual_corr_min!r}")
+        if self.kinematic_overpredict not in (0.0, 1.0):
+            raise ModelError(f"noise setting 'kinematic_overpredict' must be 0 or 1, got {self.kinematic_overpredict!r}")
         if self.accel_noise_full <= self.accel_noise_on:
             raise ModelError(f"noise setting 'accel_noise_full' ({self.accel_noise_full!r}) must be above "
                              f"'accel_noise_on' ({self.accel_noise_on!r})")
