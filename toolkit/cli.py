@@ -309,10 +309,18 @@ def cmd_emulate(args) -> int:
     return 0
 
 
+def _output_folder(path) -> None:
+    """An output folder's path that names an existing file is refused as such (before any work)."""
+    import os
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise EvstabError(f"--out {path}: is a file; expected a folder to write into (created if it does not exist)")
+
+
 def cmd_export(args) -> int:
     import shlex
     from .firmware.export import FORMATS, export_design
 
+    _output_folder(args.out)
     formats = FORMATS if args.format == "all" else (args.format,)
     command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     paths = export_design(args.design_dir, args.out, formats, args.precision, command)
@@ -576,6 +584,7 @@ def cmd_design(args) -> int:
         raise EvstabError(f"--workers must be >= 1, got {args.workers}")
     if args.scheduler and args.executor != "dask":
         raise EvstabError("--scheduler needs --executor dask")
+    _output_folder(args.out)
     command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     noise = None
     if args.noise:

@@ -373,6 +373,12 @@ def _read_strict(path: Path, required: tuple[str, ...] = REQUIRED) -> DriveLog:
         if h in seen:
             raise LogFormatError(f"{source}: row 1: duplicate column '{h}'")
         seen.add(h)
+    if len(header) == 1 and required:
+        for delim, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
+            if delim in header[0]:
+                raise LogFormatError(f"{source}: row 1: the header is separated by {name} ({header[0][:60]!r}); a "
+                                     f"drive log is comma-separated (a table with its own delimiter and names goes "
+                                     f"through a channel map: --map, docs/formats.md)")
     for c in required:
         if c not in seen:
             raise LogFormatError(f"{source}: row 1: missing required column '{c}'")

@@ -46,7 +46,8 @@ def _mutate(text: str, data) -> str | bytes:
     lines = text.split("\n")
     for _ in range(data.draw(st.integers(1, 4))):
         op = data.draw(st.sampled_from(["token", "drop_line", "dup_line", "swap_lines", "drop_field", "dup_header",
-                                        "truncate", "crlf", "bom", "char", "reverse_t", "empty_lines"]))
+                                        "truncate", "crlf", "bom", "char", "reverse_t", "empty_lines", "handwheel",
+                                        "semicolons"]))
         i = data.draw(st.integers(0, len(lines) - 1))
         fields = lines[i].split(",")
         if op == "token":
@@ -81,6 +82,19 @@ def _mutate(text: str, data) -> str | bytes:
             lines = [lines[0]] + lines[:0:-1]
         elif op == "empty_lines":
             lines.insert(i, "")
+        elif op == "handwheel":  # the steer column logged as the hand-wheel angle (ratio 15)
+            head = lines[0].split(",")
+            if "steer" in head:
+                j = head.index("steer")
+                for k in range(1, len(lines)):
+                    f = lines[k].split(",")
+                    try:
+                        f[j] = repr(15.0 * float(f[j]))
+                    except (ValueError, IndexError):
+                        continue
+                    lines[k] = ",".join(f)
+        elif op == "semicolons":  # a spreadsheet's export
+            lines = [ln.replace(",", ";") for ln in lines]
     out = "\n".join(lines)
     if data.draw(st.integers(0, 30)) == 0:
         return out.encode("utf-8", "surrogatepass")[:50] + bytes(data.draw(st.lists(st.integers(0, 255), max_size=20)))

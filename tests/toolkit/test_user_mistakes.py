@@ -194,3 +194,25 @@ def test_the_steer_check_at_its_bounds(k, refused):
             check_steer(log, p.wheelbase, p.understeer_gradient)
     else:
         check_steer(log, p.wheelbase, p.understeer_gradient)
+
+
+@pytest.mark.parametrize("delim, name", [(";", "semicolons"), ("\t", "tabs")])
+def test_a_csv_with_another_delimiter_is_named(tmp_path, capsys, log_rows, delim, name):
+    bad, out = tmp_path / "semi.csv", tmp_path / "est.csv"
+    with open(bad, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(log_rows[0]), delimiter=delim)
+        w.writeheader()
+        w.writerows(log_rows)
+    assert main(["estimate", str(bad), "--vehicle", "compact-ev", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"row 1: the header is separated by {name}" in err and "missing required column" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", [["export", "no-such-design"], ["design", "--vehicle", "compact-ev", "--quick"]])
+def test_an_output_folder_that_is_a_file_is_refused_as_such(tmp_path, capsys, command):
+    target = tmp_path / "out"
+    target.write_text("a file the user wanted kept\n")
+    assert main([*command, "--out", str(target)]) == 2
+    assert f"--out {target}: is a file; expected a folder" in capsys.readouterr().err
+    assert target.read_text() == "a file the user wanted kept\n"
