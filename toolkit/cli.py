@@ -47,6 +47,15 @@ def cmd_simulate(args) -> int:
     speed = args.speed / 3.6
     amplitude = None if args.amplitude is None else np.radians(args.amplitude)
     man = make_maneuver(args.maneuver, p, speed, amplitude)
+    if man.open_loop:  # a road-wheel angle no car has: refused before the run, with the limit
+        from .logio import PLAUSIBLE
+        peak = float(np.max(np.abs(man.steer(np.linspace(0.0, man.duration, 20001)))))
+        limit = PLAUSIBLE["steer"][1]
+        if peak > limit:
+            ratio = f" (this vehicle's steering ratio: {p.steering_ratio:g})" if p.steering_ratio else ""
+            raise EvstabError(f"{man.name}: asks {np.degrees(peak):.1f} deg of road-wheel angle, beyond the "
+                              f"{np.degrees(limit):.1f} deg a car's front wheels turn; --amplitude is the front "
+                              f"road-wheel angle in deg, not the hand-wheel angle{ratio}")
     mu = p.mu if args.mu is None else args.mu
     dist = Disturbances(wind=default_wind(p) if args.wind else None, friction=Friction(mu=mu))
     sensors = SensorConfig(gps_outages=tuple(args.gps_outage or ()))
@@ -57,6 +66,13 @@ def cmd_simulate(args) -> int:
     try:  # never write a log that the reader would refuse
         check_ranges(DriveLog(res.log_columns(), "the simulated run"))
     except LogFormatError as exc:
+        tr = res.truth
+        k = int(np.argmax(np.abs(tr["beta"])))
+        if np.abs(tr["beta"][k]) > np.radians(60.0):  # the car spun: the run is right, the log cannot hold it
+            raise EvstabError(f"{p.name} on {args.plant}, {man.name} at {args.speed:g} km/h: the car spins (sideslip "
+                              f"{np.degrees(tr['beta'][k]):.0f} deg at t = {res.t[k]:.2f} s), beyond what a drive log "
+                              f"holds ({str(exc).replace(' (a unit or scaling error?)', '')}); the manoeuvre asks more than the tyres give at this speed: lower "
+                              f"--speed or --amplitude, or close the loop (--controller)") from None
         raise EvstabError(f"{p.name}: {exc}; the vehicle parameters do not describe a car that can drive this "
                           "manoeuvre") from None
     res.write_csv(args.out)

@@ -216,3 +216,26 @@ def test_an_output_folder_that_is_a_file_is_refused_as_such(tmp_path, capsys, co
     assert main([*command, "--out", str(target)]) == 2
     assert f"--out {target}: is a file; expected a folder" in capsys.readouterr().err
     assert target.read_text() == "a file the user wanted kept\n"
+
+
+def test_a_road_wheel_angle_no_car_has_is_refused_before_the_run(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "60", "--amplitude", "90",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "asks 90.0 deg of road-wheel angle, beyond the 68.8 deg" in err and "not the hand-wheel angle" in err
+    assert "steering ratio: 15.5" in err and "vehicle parameters" not in err and not out.exists()
+    # 68 deg is a road-wheel angle a car has: no verdict before the run
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "10", "--amplitude", "30",
+                 "--out", str(out)]) == 0
+
+
+def test_a_run_that_spins_is_named_as_a_spin(tmp_path, capsys):
+    """At 250 km/h a 2 deg step is beyond the tyres: the car spins and ends up sliding backwards faster than a
+    drive log holds. The message says so, not that the vehicle file is wrong."""
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "250",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "step-steer at 250 km/h: the car spins (sideslip" in err and "lower --speed or --amplitude" in err
+    assert "vehicle parameters" not in err and "unit or scaling" not in err and not out.exists()
