@@ -16,8 +16,10 @@ import hashlib
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import threading
+import time
 import warnings
 from dataclasses import fields
 from functools import lru_cache
@@ -244,7 +246,36 @@ def _build_lock(path: Path):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+KERNELS = {"est": "the estimator", "loop": "the closed loop", "loop_lanes": "the closed loop's lane kernel",
+           "loopjac": "the closed loop's Jacobian", "tune": "the tuning's rollout", "tune_lanes": "the tuning's lane "
+           "kernel", "ecu": "the ECU step", "bench_plant": "the benchmark's plant kernel"}
+"""What each cache-key prefix compiles, for the progress line (:func:`compile_notice`)."""
+
+
+def compile_notice(key: str) -> str | None:
+    """The line said before a compile (``None``: not shown): on a terminal, or with ``EVSTAB_PROGRESS=1``
+    (``0`` silences it), what is compiled and that it happens once per code and model."""
+    flag = os.environ.get("EVSTAB_PROGRESS")
+    if flag == "0" or (flag != "1" and not sys.stderr.isatty()):
+        return None
+    prefix = key.rsplit("_", 1)[0] if "_" in key else ""
+    what = KERNELS.get(prefix, "a plant model" if not prefix else prefix)
+    return f"evstab: compiling {what} to C (first run with this code and model only; cached in {_cache_dir()})"
+
+
 def _build(write, cc: str, lib: Path, key: str, flags: tuple[str, ...], fallback: str) -> Path | None:
+    notice = compile_notice(key)
+    if notice:
+        print(notice + " ...", file=sys.stderr, end="", flush=True)
+    t0 = time.perf_counter()
+    try:
+        return _compile(write, cc, lib, key, flags, fallback)
+    finally:
+        if notice:
+            print(f" {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+
+
+def _compile(write, cc: str, lib: Path, key: str, flags: tuple[str, ...], fallback: str) -> Path | None:
     with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
         c_file = Path(tmp) / f"evstab_{key}.c"
         write(c_file)
