@@ -144,7 +144,15 @@ def cmd_estimate(args) -> int:
     d = design_filter(args.method, p, noise, latency=args.gps_latency)
     if args.tune:
         return _tune_noise(args, d, log)
-    est = run_estimator(d, log, monitor=not args.no_monitor)
+    bias = None
+    if args.calibration or args.save_calibration:
+        if not d.bias:
+            raise EvstabError(f"'{args.method}' has no gyro-bias state: --calibration and --save-calibration go with "
+                              f"dakf, amrkf, kf-bias, mbkf or double-layer")
+        if args.calibration:
+            from .estimation.calibration import load_calibration
+            bias = load_calibration(args.calibration)
+    est = run_estimator(d, log, monitor=not args.no_monitor, bias=bias)
     _require_finite(args.log, est.t, {"beta": est["beta"], "yaw_rate": est["yaw_rate"]})
     cols = {"t": est.t}
     for name in OUTPUTS:
@@ -158,6 +166,10 @@ def cmd_estimate(args) -> int:
             cols[name] = est[name]
             flagged[name] = int(est[name].sum())
     write_log_table(args.out, cols)
+    if args.save_calibration:
+        from .estimation.calibration import write_calibration
+        write_calibration(args.save_calibration, est.final["gyro_bias"], est.final["gyro_bias_std"],
+                          "evstab " + " ".join(sys.argv[1:]) if sys.argv[1:] else "evstab estimate")
     fixes = int(np.isfinite(log["gps_course"]).sum())
     used = int(np.nansum(est["gps_used"]))
     faults = ", ".join(f"{k[6:]} {v}" for k, v in flagged.items() if v)
@@ -471,6 +483,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fit the filter's noise intensities to the log (innovation maximum likelihood: gyro and GPS "
                          "velocity noise, process noise) and write them as a noise file to --out, which "
                          "'evstab estimate --noise' and 'evstab design --noise' read")
+    sp.add_argument("--calibration", help="start the filter's gyro bias from this calibration file (TOML, from "
+                                          "--save-calibration of an earlier drive)")
+    sp.add_argument("--save-calibration", help="also write the gyro bias learnt over this drive as a calibration file")
     sp.add_argument("--out", required=True, help="estimate CSV to write (with --tune: the noise file)")
     sp.set_defaults(func=cmd_estimate)
     sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")

@@ -170,14 +170,22 @@ def _layout(states: tuple[str, ...], cusum: bool, nb: int, kinematic: int, adapt
     ])
 
 
-def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0) -> np.ndarray:
+def initial_state(d: FilterDesign, yaw0: float = 0.0, yaw_rate0: float = 0.0, bias=None) -> np.ndarray:
+    """The filter state a run starts from; ``bias``: ``(value, std)`` [rad/s] of the gyro bias as a calibration
+    gives it (a design with a bias state), instead of 0 and the design's initial spread."""
     lay = layout(d)
     z = lay.zeros()
     x = np.zeros(d.n)
     x[d.index("yaw")] = yaw0
     x[d.index("yaw_rate")] = yaw_rate0
+    P = d.initial_covariance()
+    if bias is not None:
+        if not d.bias:
+            raise ModelError(f"'{d.method}' has no gyro-bias state to start from a calibration")
+        ib = d.index("gyro_bias")
+        x[ib], P[ib, ib] = float(bias[0]), float(bias[1]) ** 2
     z[lay.slot("x")] = x
-    z[lay.slot("P")] = d.initial_covariance().ravel(order="F")
+    z[lay.slot("P")] = P.ravel(order="F")
     z[lay.slot("buf")] = yaw0
     z[lay.slot("qscale")] = 1.0
     if weighs_prediction(d):

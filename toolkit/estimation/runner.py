@@ -33,6 +33,10 @@ class Estimate:
     columns: dict
     method: str
     backend: str
+    final: dict = None
+    """What a later drive may start from (:func:`toolkit.estimation.calibration`): the gyro bias at the last
+    row and its standard deviation (from the filter's covariance after the log's last compiled chunk, which
+    holds the last row without a fix to the chunk's end: slightly wider than at the last row)."""
 
     def __getitem__(self, name):
         return self.columns[name]
@@ -43,10 +47,14 @@ def _plain(d: FilterDesign):
     return {"lob": lob, "kkf": kkf, "two-stage": two_stage, "dual-antenna": dual_antenna}.get(d.method)
 
 
-def initial_state(d: FilterDesign, yaw_rate0: float = 0.0) -> np.ndarray:
-    """The filter state a run starts from."""
+def initial_state(d: FilterDesign, yaw_rate0: float = 0.0, bias=None) -> np.ndarray:
+    """The filter state a run starts from (``bias``: see :func:`toolkit.estimation.kalman.initial_state`)."""
     mod = _plain(d)
-    return mod.initial_state(d) if mod is not None else kalman.initial_state(d, 0.0, yaw_rate0)
+    if mod is not None:
+        if bias is not None:
+            raise ModelError(f"'{d.method}' does not start from a calibration")
+        return mod.initial_state(d)
+    return kalman.initial_state(d, 0.0, yaw_rate0, bias)
 
 
 def _step_function(d: FilterDesign, tuned: tuple[str, ...] = ()):
@@ -197,7 +205,7 @@ def log_inputs(cols: dict, dt0: float = 1e-3, gyro_ok=None) -> np.ndarray:
                                dt0=dt0)
 
 
-def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) -> Estimate:
+def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None, bias=None) -> Estimate:
     """Run design ``d`` over a drive log (:class:`toolkit.logio.DriveLog` or a mapping of columns).
 
     ``*_true`` columns are never read. With ``monitor`` (True or a
@@ -215,7 +223,11 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
     get = cols.get
     U = log_inputs(cols, d.dt_nominal, None if screened is None else screened.gyro_ok)
     cf = compiled_filter(d, backend)
-    Y = cf.run(U, initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0])))
+    z0 = initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0]), bias)
+    if _plain(d) is None:
+        Y, z_end = cf.run(U, z0, final_state=True)
+    else:
+        Y, z_end = cf.run(U, z0), None
     out = kalman.OUTPUTS.columns(Y)
     if d.method == "double-layer":  # layer 2 on layer 1's (dakf's) sideslip and yaw rate
         from .double_layer import layer2
@@ -226,4 +238,9 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None) 
     if screened is not None:
         from .monitor import MonitorSettings, estimate_flags
         out.update(estimate_flags(screened, out, monitor if isinstance(monitor, MonitorSettings) else None))
-    return Estimate(cols["t"], out, d.method, cf.backend)
+    final = {}
+    if z_end is not None and d.bias and "gyro_bias" in d.states:
+        P = kalman.layout(d).unpack(z_end).P
+        ib = d.index("gyro_bias")
+        final = {"gyro_bias": float(out["gyro_bias"][-1]), "gyro_bias_std": float(np.sqrt(P[ib * d.n + ib]))}
+    return Estimate(cols["t"], out, d.method, cf.backend, final)
