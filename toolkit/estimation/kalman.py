@@ -123,6 +123,8 @@ def kinematic_layout(d: FilterDesign) -> Layout:
     """The kinematic path's state layout of a design (:data:`KINEMATIC`, or :data:`KINEMATIC_LP` with the
     accelerometer's low-pass)."""
     return KINEMATIC_LP if d.noise.kinematic_ay_cutoff > 0 else KINEMATIC
+
+
 INIT_MAX = 60.0
 """Cap of the filter state's ``init`` entry (1 + seconds since the first fix)."""
 
@@ -550,7 +552,9 @@ def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=0.0):
 
 def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
     """The kinematic path's weight ``w`` (see :func:`_kinematic_blend`) from the model's sideslip row
-    ``a_row`` (continuous ``A``) and ``b_row`` (``B``); returns ``(w, q, kinematic drive, next state)``."""
+    ``a_row`` (continuous ``A``) and ``b_row`` (``B``); returns ``(w, q, kinematic drive, next state, lagged)``,
+    ``lagged`` the share of ``w`` whose ``-r`` the low-passed measured rate carries (the number 0 without the
+    accelerometer's low-pass)."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
     lay_k = kinematic_layout(d)
