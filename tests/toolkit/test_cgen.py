@@ -46,6 +46,7 @@ def _library(tmp_path, fn: ca.Function, in_place: bool):
 
 def _bits(a) -> list[int]:
     """The IEEE bit patterns (NaNs as one pattern: casadi and C may carry different payloads)."""
+    a = a.full() if hasattr(a, "full") else a  # a casadi DM: its numbers (numpy on a DM is deprecated)
     return [0x7FF8000000000000 if math.isnan(v) else int(np.float64(v).view(np.int64)) for v in np.ravel(a)]
 
 
