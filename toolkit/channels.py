@@ -59,12 +59,11 @@ import csv
 import gzip
 import io
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from .logio import REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows
+from .logio import REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows, read_toml
 
 COLUMNS = tuple(c for c, _, _ in SCHEMA if c != "t")
 MAPPABLE = COLUMNS + TRUTH_COLUMNS
@@ -90,12 +89,7 @@ UNITS = {
 def load_channel_map(path) -> dict:
     """Read and check a channel map (see the module docstring); errors name the file and the key."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
-    except OSError as exc:
-        raise LogFormatError(f"{path}: cannot read: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise LogFormatError(f"{path}: not a TOML file ({exc})") from None
+    doc = read_toml(path)
     meta = doc.pop("meta", {})
     if not isinstance(meta, dict):
         raise LogFormatError(f"{path}: [meta] must be a table")

@@ -95,6 +95,19 @@ def atomic_write(path: str | Path, write, mode: str = "w") -> None:
         raise
 
 
+def read_toml(path, error=None) -> dict:
+    """A TOML file's document; a file that cannot be read or is not TOML raises ``error`` (default
+    :class:`LogFormatError`) naming the file."""
+    import tomllib
+    error = LogFormatError if error is None else error
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: not a TOML file ({exc})") from None
+
+
 def write_log_csv(path: str | Path, columns: dict) -> None:
     """Write a drive log: schema columns first (in schema order), then the rest; NaN as empty."""
     missing = [c for c in REQUIRED if c not in columns]

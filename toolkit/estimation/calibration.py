@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from pathlib import Path
 
 from evstab.plants.errors import DataError
 
-from ..logio import atomic_write
+from ..logio import atomic_write, read_toml
 
 BIAS_MAX = 0.1
 """[rad/s] A bias beyond this (5.7 deg/s) is not a yaw-rate sensor's: the file is refused."""
@@ -38,12 +37,7 @@ def write_calibration(path, bias: float, bias_std: float, source: str) -> None:
 def load_calibration(path) -> tuple[float, float]:
     """``(bias, bias_std)`` [rad/s] from a calibration file; a bad file is refused naming the file and field."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not a TOML file ({exc})") from None
+    doc = read_toml(path, DataError)
     gyro = doc.get("gyro")
     if not isinstance(gyro, dict):
         raise DataError(f"{path}: no [gyro] table (expected 'bias' and 'bias_std' in rad/s)")
