@@ -170,7 +170,8 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
     methods = tuple(QUICK_METHODS if quick else METHODS)
     seeds = SEEDS[:1] if quick else SEEDS
     rows, skipped = [], {}
-    for drive in drives(root, quick):
+    every = drives(root, quick)
+    for drive in every:
         for gyro, seed, cols in sensor_logs(drive, seeds):
             log = {k: v for k, v in cols.items() if not k.endswith("_true")}
             base = {"drive": drive["drive"], "gyro": gyro, "seed": seed}
@@ -217,7 +218,7 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
     line = [w for w in worst.values() if w["method"] == DEFAULT]
     header, table = pivot(line, ["method"], "drive_gyro", lambda r: f"{r['rms_deg']:.2f} / {r['max_deg']:.2f}")
     write_markdown(out / "real_drives_readme.md", header, table)
-    cold = cold_starts(root, n=2 if quick else COLD_STARTS, quick=quick)
+    cold = cold_starts(every[:len(GTI)], n=2 if quick else COLD_STARTS, quick=quick)
     write_table(cold, out / "real_drives_cold.csv")
     by = {}
     for r in cold:
@@ -230,15 +231,14 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
     return rows
 
 
-def cold_starts(root: Path, n: int = COLD_STARTS, seed: int = 0, quick: bool = False) -> list[dict]:
+def cold_starts(gti: list[dict], n: int = COLD_STARTS, seed: int = 0, quick: bool = False) -> list[dict]:
     """The default method started at ``n`` random instants inside each GTI drive (production gyro, emulated
     course of seed 0): the time until the error stays below :data:`SETTLE_DEG` for 1 s (inf: never). High_Speed
     and High_Speed2 are also started from a calibration (:mod:`toolkit.estimation.calibration`): the gyro bias
     the filter learnt over Low_Speed (45 s at rest, then tight turns) with the same production gyro and another
-    noise seed, at the same instants."""
+    noise seed, at the same instants. ``gti``: the GTI drives of :func:`drives`, in their order."""
     rows = []
     rng = np.random.default_rng(seed)
-    gti = drives(root, quick)[:len(GTI)]
     low = emulate(gti[1]["cols"], Emulation(seed=CALIBRATION_SEED, **PRODUCTION_GYRO))
     cal = run_estimator(design_filter(DEFAULT, gti[1]["vehicle"]), {k: v for k, v in low.items()
                                                                      if not k.endswith("_true")}, monitor=True).final

@@ -169,7 +169,7 @@ def cmd_estimate(args) -> int:
     if args.save_calibration:
         from .estimation.calibration import write_calibration
         write_calibration(args.save_calibration, est.final["gyro_bias"], est.final["gyro_bias_std"],
-                          "evstab " + " ".join(sys.argv[1:]) if sys.argv[1:] else "evstab estimate")
+                          _command_line() or "evstab estimate")
     fixes = int(np.isfinite(log["gps_course"]).sum())
     used = int(np.nansum(est["gps_used"]))
     faults = ", ".join(f"{k[6:]} {v}" for k, v in flagged.items() if v)
@@ -344,13 +344,19 @@ def _output_folder(path) -> None:
         raise EvstabError(f"--out {path}: is a file; expected a folder to write into (created if it does not exist)")
 
 
-def cmd_export(args) -> int:
+def _command_line() -> str | None:
+    """The command as typed (each argument shell-quoted), for the provenance of what it writes; None when run
+    from Python without arguments."""
     import shlex
+    return "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+
+
+def cmd_export(args) -> int:
     from .firmware.export import FORMATS, export_design
 
     _output_folder(args.out)
     formats = FORMATS if args.format == "all" else (args.format,)
-    command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    command = _command_line()
     paths = export_design(args.design_dir, args.out, formats, args.precision, command)
     print(f"exported {args.design_dir} ({args.precision}): " + ", ".join(p.name for p in paths) + f" -> {args.out}")
     return 0
@@ -609,14 +615,13 @@ def cmd_derive_nominal(args) -> int:
 
 
 def cmd_design(args) -> int:
-    import shlex
     from .design_job import run_design
     if args.workers is not None and args.workers < 1:
         raise EvstabError(f"--workers must be >= 1, got {args.workers}")
     if args.scheduler and args.executor != "dask":
         raise EvstabError("--scheduler needs --executor dask")
     _output_folder(args.out)
-    command = "evstab " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    command = _command_line()
     noise = None
     if args.noise:
         from .estimation.noise_fit import load_noise

@@ -152,8 +152,7 @@ def emulate(log, em: Emulation) -> dict:
     cols["yaw_rate_true"] = r
     cols["beta_true"] = beta
     cols["yaw_true"] = yaw
-    for k in ("gps_heading",):
-        cols.pop(k, None)
+    cols.pop("gps_heading", None)  # a dual-antenna heading the reference may carry is not a production sensor
     return cols
 
 

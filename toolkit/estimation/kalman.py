@@ -518,16 +518,11 @@ def _kinematic_blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o
             A[i, j] = A[i, j] * keep
         B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
     # beta' takes -r from the yaw-rate state, except the share the low-passed measured rate carries
-    A[ib, ir] = A[ib, ir] - (w if _off(lagged) else w - lagged)
+    A[ib, ir] = A[ib, ir] - (w if lagged is None else w - lagged)
     return A, B, q, kin, state
 
 
-def _off(lagged) -> bool:
-    """Whether a kinematic path's low-passed share is the number 0 (no low-pass in the design)."""
-    return isinstance(lagged, float) and lagged == 0.0
-
-
-def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=0.0):
+def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=None):
     """:func:`_kinematic_blend` on a tabulated transition (:mod:`toolkit.estimation.transition`): the
     sideslip, yaw-rate and heading rows of ``E`` and ``G`` (the heading's through the yaw rate's)
     scaled by ``1 - w``, and what the kinematics alone give added: ``-w dt`` where ``beta'`` takes
@@ -544,7 +539,7 @@ def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=0.0):
         for j in range(n):
             E[i, j] = E[i, j] * keep
         Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
-    E[ib, ir] = E[ib, ir] - (w if _off(lagged) else w - lagged) * dt
+    E[ib, ir] = E[ib, ir] - (w if lagged is None else w - lagged) * dt
     if "yaw" in d.states:
         E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w * dt
     return E, Gu
@@ -553,7 +548,7 @@ def _kinematic_transition(d: FilterDesign, E, Gu, w, dt, o, lagged=0.0):
 def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
     """The kinematic path's weight ``w`` (see :func:`_kinematic_blend`) from the model's sideslip row
     ``a_row`` (continuous ``A``) and ``b_row`` (``B``); returns ``(w, q, kinematic drive, next state, lagged)``,
-    ``lagged`` the share of ``w`` whose ``-r`` the low-passed measured rate carries (the number 0 without the
+    ``lagged`` the share of ``w`` whose ``-r`` the low-passed measured rate carries (None without the
     accelerometer's low-pass)."""
     nz, n = d.noise, d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
@@ -589,7 +584,7 @@ def _kinematic_weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
         + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
     if share is None:
-        kin, lagged = _col(e_b, o) * (w * ay / v_m), 0.0
+        kin, lagged = _col(e_b, o) * (w * ay / v_m), None
     else:  # a noisy accelerometer: beta' = a_y / v - r from the measurements, both through the same lags
         kin = _col(e_b, o) * ((w * ay / v_m) * (1.0 - share) + (w * share) * lp["rate_lp"])
         lagged = w * share
@@ -631,12 +626,12 @@ def _accel_low_pass(d: FilterDesign, ks, g, ay, a_model, v_m, x, o):
     lp = {"ay_last": ay, "ay_noise": noise}
     lp["ay_lp1"] = ks.ay_lp1 + alpha * (ay - ks.ay_lp1)
     lp["ay_lp"] = ks.ay_lp + alpha * (lp["ay_lp1"] - ks.ay_lp)
-    lp["dep_lp1"] = ks.dep_lp1 + alpha * (ay - a_model - ks.dep_lp1)
+    departure = ay - a_model
+    lp["dep_lp1"] = ks.dep_lp1 + alpha * (departure - ks.dep_lp1)
     lp["dep_lp"] = ks.dep_lp + alpha * (lp["dep_lp1"] - ks.dep_lp)
     rate = ay / v_m - (g.yaw_rate - x[d.index("gyro_bias")] if d.bias else g.yaw_rate)
     lp["rate_lp1"] = ks.rate_lp1 + alpha * (rate - ks.rate_lp1)
     lp["rate_lp"] = ks.rate_lp + alpha * (lp["rate_lp1"] - ks.rate_lp)
-    departure = ay - a_model
     return lp, share, ay + share * (lp["ay_lp"] - ay), departure + share * (lp["dep_lp"] - departure)
 
 

@@ -119,6 +119,12 @@ def _runs(eq: np.ndarray):
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
+def _after(t: np.ndarray, start: int, end: int, duration: float) -> int:
+    """The first row of ``start:end`` at which ``duration`` has passed since row ``start`` (``end`` or beyond
+    if it does not within)."""
+    return start + int(np.searchsorted(t[start:end] - t[start], duration - 1e-12))
+
+
 def gyro_quantum(gyro: np.ndarray) -> np.ndarray:
     """The gyro signal's resolution as seen up to each row (causal): the smallest nonzero step between
     successive readings so far (inf before the first step). A MEMS gyro's noise makes it tiny; a CAN
@@ -155,7 +161,7 @@ def gyro_stuck(t: np.ndarray, gyro: np.ndarray, s: MonitorSettings, ay=None, spe
         if q >= s.quantised_step:  # inf: no step seen yet (a log that starts in a held value), judged the same way
             q = q if np.isfinite(q) else s.quantised_step
             if not have_ay:
-                k = first + int(np.searchsorted(t[first:b] - t[first], s.quantised_hold_max - 1e-12))
+                k = _after(t, first, b, s.quantised_hold_max)
                 if k < b:
                     flag[k:b] = True
                 continue
@@ -165,14 +171,13 @@ def gyro_stuck(t: np.ndarray, gyro: np.ndarray, s: MonitorSettings, ay=None, spe
                 np.abs(ay[first:b] - vv * gyro[first]) > 2.0 * q * np.abs(vv) + s.quantised_margin)  # NaN: not off
             o_starts, o_ends = _runs(off)
             for oa, ob in zip(o_starts, o_ends):
-                k = first + oa + int(np.searchsorted(t[first + oa:first + ob] - t[first + oa],
-                                                     s.quantised_stuck_time - 1e-12))
+                k = _after(t, first + oa, first + ob, s.quantised_stuck_time)
                 if k < first + ob:
                     flag[k:b] = True
                     break
             continue
         # flagged from the row at which both the time and the sample count are reached
-        k_time = first + int(np.searchsorted(t[first:b] - t[first], s.gyro_stuck_time - 1e-12))
+        k_time = _after(t, first, b, s.gyro_stuck_time)
         k = max(first + int(s.gyro_stuck_samples) - 1, k_time)
         if k < b:
             flag[k:b] = True
