@@ -221,7 +221,8 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
     lateral acceleration to the displacement at BOS + 1.07 s. Runs on another plant (the two-track
     of a multi-body design's nominal file) are left to the check."""
     from . import closed_loop as cl
-    from .fmvss126 import LATERAL_DISPLACEMENT_MIN, SPEED, _timing, displacement_map, find_a
+    from .fmvss126 import (DISPLACEMENT_FROM_A, LATERAL_DISPLACEMENT_MIN, SPEED, T_DISPLACEMENT, _timing,
+                           displacement_map, find_a)
     from .simulator import _loop, _setup
     from .tuning import DisplacementRun
     from evstab.plants.errors import DesignError
@@ -245,7 +246,7 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
             raise DesignError(f"{row['case']}: the FMVSS 126 loop differs in structure from the tuning's (plant "
                               f"{cfg.plant}); its lateral displacement cannot be a constraint of the tuning")
         for (amp, direction, failed), (_, _, failed_also) in zip(row["_runs"], other):
-            if amp < 5.0 * a_deg - 1e-9 or (failed | failed_also) & {"lateral_displacement", "rollover"}:
+            if amp < DISPLACEMENT_FROM_A * a_deg - 1e-9 or (failed | failed_also) & {"lateral_displacement", "rollover"}:
                 continue
             sign = 1.0 if direction == "left" else -1.0
             man = sine_with_dwell(SPEED, sign * np.deg2rad(amp) / p.steering_ratio)
@@ -254,7 +255,7 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
             hw = man.steer(t) * p.steering_ratio
             # the rollout up to DISPLACEMENT_TAIL after the displacement's instant: what comes later
             # reaches it only through the zero-phase filter's backward pass, which has decayed by then
-            n = min(U.shape[0], int(np.ceil((_timing(t, hw)[-1] + 1.07 + DISPLACEMENT_TAIL) / cfg.dt)))
+            n = min(U.shape[0], int(np.ceil((_timing(t, hw)[-1] + T_DISPLACEMENT + DISPLACEMENT_TAIL) / cfg.dt)))
             out.append(DisplacementRun(run_label(row, amp, direction), (U[:n].copy(), z0, pv),
                                        theta[-cl.CASE.size:].copy(), displacement_map(t[:n], hw[:n]),
                                        LATERAL_DISPLACEMENT_MIN))
