@@ -46,6 +46,10 @@ class Maneuver:
     events: dict = field(default_factory=dict)
     cones: np.ndarray | None = None
     """Cone positions (x, y) [m], one row per cone, where the manoeuvre has them."""
+    driver: object | None = None
+    """How the path is driven (a :class:`plants.paths.DriverModel`); None: :class:`plants.paths.PathDriver`."""
+    speed_profile: Callable[[np.ndarray], np.ndarray] | None = None
+    """The speed demand [m/s] over time (None: ``speed`` throughout); the run starts at ``speed``."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.speed) and self.speed >= 0.0):
@@ -58,6 +62,18 @@ class Maneuver:
     @property
     def open_loop(self) -> bool:
         return self.steer is not None
+
+    def speed_ref(self, t: np.ndarray) -> np.ndarray:
+        """The speed demand [m/s] at times ``t``."""
+        t = np.asarray(t, float)
+        if self.speed_profile is None:
+            return np.full_like(t, float(self.speed))
+        return np.asarray(self.speed_profile(t), float) * np.ones_like(t)
+
+    def path_driver(self, params: VehicleParams, dt: float):
+        """The driver that follows ``path`` for a car of ``params``, stepped every ``dt`` [s]."""
+        from .paths import PathDriver
+        return PathDriver(self.path, params) if self.driver is None else self.driver.make(self.path, params, dt)
 
     def drive_on(self, t: np.ndarray) -> np.ndarray:
         t = np.asarray(t, float)
@@ -192,14 +208,7 @@ def iso3888_1_lanes(vehicle_width: float) -> dict:
 
 def iso3888_1_cones(vehicle_width: float) -> np.ndarray:
     """Cone positions (x, y): the lane boundaries of sections 1, 3 and 5 at both ends and the middle."""
-    g = iso3888_1_lanes(vehicle_width)
-    cones = []
-    for sec, lane in ((0, "lane1"), (2, "lane3"), (4, "lane5")):
-        x0, x1 = g["sections"][sec]
-        for xc in (x0, 0.5 * (x0 + x1), x1):
-            for yc in g[lane]:
-                cones.append((xc, yc))
-    return np.array(cones)
+    return lane_cones(iso3888_1_lanes(vehicle_width))
 
 
 def iso3888_1(speed: float, vehicle_width: float, *, lead_in: float = 30.0, run_out: float = 40.0) -> Maneuver:
@@ -216,6 +225,103 @@ def iso3888_1(speed: float, vehicle_width: float, *, lead_in: float = 30.0, run_
     duration = (path.length - 10.0) / max(speed, 0.5)
     return Maneuver("iso3888-1", speed, duration, path=path, cones=iso3888_1_cones(vehicle_width),
                     events={"lane_offset": 3.5})
+
+
+def iso3888_2_lanes(vehicle_width: float) -> dict:
+    """ISO 3888-2 (obstacle avoidance) lane geometry for a car of ``vehicle_width`` m.
+
+    Sections 1-5 are 12, 13.5, 11, 12.5 and 12 m long; lanes 1, 3 and 5 are ``1.1 w + 0.25``,
+    ``w + 1`` and ``1.3 w + 0.25`` (at least 3 m) wide. Lane 1 is centred on y = 0; lane 3 lies
+    to the left, its right-hand boundary 1 m left of lane 1's left-hand boundary; lane 5 shares lane
+    1's right-hand boundary (evstab's reading of the standard's figure, as in ISO 3888-1).
+    Returns section start/end x and each lane's (right, left) boundary y."""
+    w = vehicle_width
+    widths = (1.1 * w + 0.25, w + 1.0, max(1.3 * w + 0.25, 3.0))
+    right1 = -widths[0] / 2
+    ends = np.cumsum([12.0, 13.5, 11.0, 12.5, 12.0])
+    right3 = right1 + widths[0] + 1.0
+    return {"sections": tuple(zip(np.concatenate([[0.0], ends[:-1]]), ends)),
+            "lane1": (right1, right1 + widths[0]), "lane3": (right3, right3 + widths[1]),
+            "lane5": (right1, right1 + widths[2]), "widths": widths}
+
+
+def lane_cones(g: dict) -> np.ndarray:
+    """Cone positions (x, y) of a lane geometry (:func:`iso3888_1_lanes`, :func:`iso3888_2_lanes`): the
+    boundaries of sections 1, 3 and 5 at both ends and the middle."""
+    cones = []
+    for sec, lane in ((0, "lane1"), (2, "lane3"), (4, "lane5")):
+        x0, x1 = g["sections"][sec]
+        for xc in (x0, 0.5 * (x0 + x1), x1):
+            for yc in g[lane]:
+                cones.append((xc, yc))
+    return np.array(cones)
+
+
+def iso3888_2(speed: float, vehicle_width: float, *, driver=None, lead_in: float = 40.0,
+              run_out: float = 40.0) -> Maneuver:
+    """ISO 3888-2 obstacle avoidance entered at ``speed``: the driver releases the accelerator at the
+    entry (x = 0) and steers along a planned line through the lane centres, with cosine transitions
+    over sections 2 and 4 (``driver``: a :class:`plants.paths.DriverModel`, default a human's delay
+    and lag)."""
+    from .paths import DriverModel
+    g = iso3888_2_lanes(vehicle_width)
+    c1, c3, c5 = (0.5 * sum(g[k]) for k in ("lane1", "lane3", "lane5"))
+    (_, _), (s2, e2), (_, _), (s4, e4), _ = g["sections"]
+
+    def y_of_x(x):
+        y = _blend(x, s2, e2 - s2, c1, c3)
+        return np.where(x >= s4, _blend(x, s4, e4 - s4, c3, c5), y)
+
+    path = path_from_function(y_of_x, -lead_in, g["sections"][-1][1] + run_out)
+    duration = (path.length - 10.0) / max(speed, 0.5)
+    return Maneuver("iso3888-2", speed, duration, path=path, cones=lane_cones(g), coast_from=lead_in / max(speed, 0.5),
+                    driver=DriverModel() if driver is None else driver, events={"entry": lead_in / max(speed, 0.5)})
+
+
+def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: int = 7, clearance: float = 0.35,
+           driver=None, lead_in: float = 40.0, run_out: float = 40.0) -> Maneuver:
+    """A slalom through ``cones`` cones ``spacing`` m apart on y = 0: the planned line is a cosine
+    ``y = A cos(pi x / spacing)`` that passes each cone on alternate sides with the car's side
+    ``clearance`` m from it (``A = w / 2 + clearance``), entered straight, at constant ``speed``; its
+    lateral acceleration peaks at ``A (pi v / spacing)^2``."""
+    from .paths import DriverModel
+    amp = 0.5 * vehicle_width + clearance
+    x_end = spacing * (cones - 1)
+
+    def y_of_x(x):
+        inside = (x >= -0.5 * spacing) & (x <= x_end + 0.5 * spacing)
+        return np.where(inside, -amp * np.cos(np.pi * x / spacing), 0.0) * _smooth_gate(x, spacing, x_end)
+
+    path = path_from_function(y_of_x, -lead_in, x_end + run_out)
+    cone_xy = np.column_stack([spacing * np.arange(cones), np.zeros(cones)])
+    return Maneuver("slalom", speed, (path.length - 10.0) / max(speed, 0.5), path=path, cones=cone_xy,
+                    driver=DriverModel() if driver is None else driver,
+                    events={"spacing": spacing, "amplitude": amp})
+
+
+def _smooth_gate(x, spacing, x_end):
+    """1 over the cones, rising and falling over the half spacing before the first and after the last."""
+    up = 0.5 * (1.0 - np.cos(np.pi * np.clip((x + 0.5 * spacing) / (0.5 * spacing), 0.0, 1.0)))
+    down = 0.5 * (1.0 - np.cos(np.pi * np.clip((x_end + 0.5 * spacing - x) / (0.5 * spacing), 0.0, 1.0)))
+    return up * down
+
+
+def random_steer(speed: float, p: VehicleParams, *, ay_max: float = 4.0, seed: int = 0, duration: float = 30.0,
+                 bandwidth: float = 0.5) -> Maneuver:
+    """Smooth random steering: band-limited noise (up to ``bandwidth`` Hz; seeded) scaled so that the
+    nominal linear car's steady-state lateral acceleration stays within ``ay_max`` [m/s^2]."""
+    rng = np.random.default_rng(seed)
+    dt = 0.01
+    tt = np.arange(0.0, duration + dt, dt)
+    spec = np.fft.rfft(rng.standard_normal(len(tt)))
+    f = np.fft.rfftfreq(len(tt), dt)
+    spec[f > bandwidth] = 0.0
+    x = np.fft.irfft(spec, len(tt)) * _smoothstep(tt / 2.0) * _smoothstep((duration - tt) / 2.0)
+    x *= steer_for_lateral_acceleration(p, speed, ay_max) / np.max(np.abs(x))
+
+    def steer(t):
+        return np.interp(np.asarray(t, float), tt, x)
+    return Maneuver("random-steer", speed, duration, steer=steer, events={"ay_max": ay_max, "seed": seed})
 
 
 def dlc_000(speed: float, *, b1: float = 3.5, b2: float = 3.5, s1: float = 60.0, s2: float = 40.0,

@@ -94,3 +94,53 @@ class PathDriver:
         gain = self.params.wheelbase + self.params.understeer_gradient * speed**2
         delta = gain * 2.0 * np.sin(alpha) / ld
         return idx, float(np.clip(delta, -self.max_steer, self.max_steer))
+
+
+@dataclass(frozen=True)
+class HumanDriver:
+    """A driver who sees the path like :class:`PathDriver` but acts like a person: the pure-pursuit
+    command reaches the hand-wheel after a reaction ``delay`` [s] and through a first-order
+    neuromuscular ``lag`` [s] (the crossover-model values of a driver in an emergency manoeuvre:
+    0.1-0.2 s of delay, about 0.1 s of lag; McRuer and Krendel, *Mathematical Models of Human Pilot
+    Behavior*, AGARDograph 188, 1974). Stepped every ``dt`` [s] like :class:`PathDriver`."""
+
+    path: Path
+    params: VehicleParams
+    dt: float
+    delay: float = 0.15
+    lag: float = 0.1
+    preview_time: float = 0.8
+    min_lookahead: float = 5.0
+    max_steer: float = 0.6
+
+    def __post_init__(self) -> None:
+        if not (self.dt > 0 and self.delay >= 0 and self.lag >= 0):
+            raise ManeuverError(f"human driver: dt must be > 0 s, delay and lag >= 0 s (got {self.dt!r}, "
+                                f"{self.delay!r}, {self.lag!r})")
+
+    def initial_state(self):
+        n = int(round(self.delay / self.dt))
+        return (0, [0.0] * n, 0, 0.0)
+
+    def steer(self, state, x: float, y: float, yaw: float, speed: float):
+        idx, buf, head, out = state
+        idx, wanted = PathDriver(self.path, self.params, self.preview_time, self.min_lookahead,
+                                 self.max_steer).steer(idx, x, y, yaw, speed)
+        if buf:  # a ring buffer of the last delay / dt commands
+            wanted, buf[head] = buf[head], wanted
+            head = (head + 1) % len(buf)
+        out = wanted if self.lag == 0 else out + (wanted - out) * min(self.dt / self.lag, 1.0)
+        return (idx, buf, head, out), out
+
+
+@dataclass(frozen=True)
+class DriverModel:
+    """How a path-following manoeuvre is driven: :class:`HumanDriver`'s reaction ``delay`` [s],
+    neuromuscular ``lag`` [s] and ``preview_time`` [s]."""
+
+    delay: float = 0.15
+    lag: float = 0.1
+    preview_time: float = 0.8
+
+    def make(self, path: Path, params: VehicleParams, dt: float) -> HumanDriver:
+        return HumanDriver(path, params, dt, self.delay, self.lag, self.preview_time)

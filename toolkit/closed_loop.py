@@ -421,7 +421,7 @@ def loop_inputs(spec: LoopSpec, params: VehicleParams, maneuver: Maneuver, distu
         U = out
     col = INPUTS.columns(U)  # views: writing them fills U
     col["steer_driver"][:] = maneuver.steer(t) if maneuver.open_loop else 0.0
-    col["speed_ref"][:] = maneuver.speed
+    col["speed_ref"][:] = maneuver.speed_ref(t)
     col["drive_on"][:] = maneuver.drive_on(t)
     col["disturbances"][:] = W.T
     if noise is None:

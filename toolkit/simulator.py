@@ -20,7 +20,6 @@ from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehiclePara
 from evstab.plants.disturbances import Disturbances, disturbance_profile
 from evstab.plants.errors import EvstabError
 from evstab.plants.maneuvers import Maneuver
-from evstab.plants.paths import PathDriver
 from evstab.plants.sensors import SensorConfig, measure
 
 from .compiled import compiled_plant
@@ -148,7 +147,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     W = disturbance_profile(disturbances, t)
     if controller is None and maneuver.open_loop:  # nothing feeds back: the plant alone, one call
         steer = np.asarray(maneuver.steer(t), float) * np.ones(n)
-        cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=np.full(n, float(maneuver.speed)),
+        cmd = COMMANDS.pack(steer=steer, yaw_moment=np.zeros(n), speed_ref=maneuver.speed_ref(t),
                             drive_on=np.asarray(maneuver.drive_on(t), float) * np.ones(n), steer_rate=steer_rate(steer, dt))
         cp = compiled_plant(model, params, dt, compile=compile)
         x0 = model.initial_state(params, maneuver.speed)
@@ -164,7 +163,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     if maneuver.open_loop and prog is not None:
         Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
     else:
-        driver = None if maneuver.open_loop else PathDriver(maneuver.path, params)
+        driver = None if maneuver.open_loop else maneuver.path_driver(params, dt)
         Yt, E, M = cl.run_stepped(spec, params, U, z0, theta, driver=driver, program=prog)
     return _loop_result(spec, prog, model, params, maneuver, t, W, U, Yt, E, M, sensors, seed, dt)
 
