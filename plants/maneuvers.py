@@ -278,7 +278,7 @@ def iso3888_2(speed: float, vehicle_width: float, *, driver=None, lead_in: float
                     driver=DriverModel() if driver is None else driver, events={"entry": lead_in / max(speed, 0.5)})
 
 
-def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: int = 7, clearance: float = 0.35,
+def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: int = 7, clearance: float = 0.2,
            driver=None, lead_in: float = 40.0, run_out: float = 40.0) -> Maneuver:
     """A slalom through ``cones`` cones ``spacing`` m apart on y = 0: the planned line is a cosine
     ``y = A cos(pi x / spacing)`` that passes each cone on alternate sides with the car's side

@@ -98,39 +98,85 @@ class PathDriver:
 
 @dataclass(frozen=True)
 class HumanDriver:
-    """A driver who sees the path like :class:`PathDriver` but acts like a person: the pure-pursuit
-    command reaches the hand-wheel after a reaction ``delay`` [s] and through a first-order
-    neuromuscular ``lag`` [s] (the crossover-model values of a driver in an emergency manoeuvre:
-    0.1-0.2 s of delay, about 0.1 s of lag; McRuer and Krendel, *Mathematical Models of Human Pilot
-    Behavior*, AGARDograph 188, 1974). Stepped every ``dt`` [s] like :class:`PathDriver`."""
+    """A driver who follows the path like a person: the command reaches the road wheels after a
+    reaction ``delay`` [s] and through a first-order neuromuscular ``lag`` [s] (the values of a
+    driver in an emergency manoeuvre: 0.1-0.2 s of delay, about 0.1 s of lag; McRuer and Krendel,
+    *Mathematical Models of Human Pilot Behavior*, AGARDograph 188, 1974), and which the driver
+    anticipates: he steers for where the car will be after them, turning at its present yaw rate.
+    From that predicted pose, the steer is the path's curvature ``preview_time`` ahead through the
+    linear car, ``(L + K_us v^2) kappa``, plus a correction of the heading error and the lateral
+    error (Stanley's law, ``-e_psi - atan(gain_lateral e / (v + 1 m/s))``). Stepped every ``dt`` [s]
+    like :class:`PathDriver`."""
 
     path: Path
     params: VehicleParams
     dt: float
     delay: float = 0.15
     lag: float = 0.1
-    preview_time: float = 0.8
-    min_lookahead: float = 5.0
+    preview_time: float = 0.1
+    gain_lateral: float = 1.5
     max_steer: float = 0.6
 
     def __post_init__(self) -> None:
-        if not (self.dt > 0 and self.delay >= 0 and self.lag >= 0):
-            raise ManeuverError(f"human driver: dt must be > 0 s, delay and lag >= 0 s (got {self.dt!r}, "
-                                f"{self.delay!r}, {self.lag!r})")
+        if not (self.dt > 0 and self.delay >= 0 and self.lag >= 0 and self.preview_time >= 0):
+            raise ManeuverError(f"human driver: dt must be > 0 s, delay, lag and preview >= 0 s (got {self.dt!r}, "
+                                f"{self.delay!r}, {self.lag!r}, {self.preview_time!r})")
+        x, y = self.path.x, self.path.y
+        dx, dy = np.gradient(x, self.path.s), np.gradient(y, self.path.s)
+        ddx, ddy = np.gradient(dx, self.path.s), np.gradient(dy, self.path.s)
+        object.__setattr__(self, "_heading", np.unwrap(np.arctan2(dy, dx)))
+        object.__setattr__(self, "_kappa", (dx * ddy - dy * ddx) / np.maximum(dx * dx + dy * dy, 1e-12) ** 1.5)
 
     def initial_state(self):
-        n = int(round(self.delay / self.dt))
-        return (0, [0.0] * n, 0, 0.0)
+        n = max(int(round(self.delay / self.TICK)), 0)
+        return {"idx": 0, "buf": [0.0] * n, "head": 0, "out": 0.0, "k": 0, "held": 0.0}
+
+    TICK = 0.01
+    """[s] The driver decides a new command every tick (a person does not act at 1 kHz)."""
+
+    def _predict(self, st, x, y, yaw, speed):
+        """The pose after the delay and the lag, steering the commands already on their way (the
+        buffer, then the last of them held) through the lag into a kinematic car,
+        ``r = v delta / (L + K_us v^2)``."""
+        gain = self.params.wheelbase + self.params.understeer_gradient * speed ** 2
+        h = self.TICK
+        delta = st["out"]
+        buf, head = st["buf"], st["head"]
+        queue = [buf[(head + i) % len(buf)] for i in range(len(buf))] if buf else []
+        steps = len(queue) + max(int(round(self.lag / h)), 0)
+        cmd = queue[-1] if queue else st["held"]
+        a = min(h / self.lag, 1.0) if self.lag > 0 else 1.0
+        for i in range(steps):
+            c = queue[i] if i < len(queue) else cmd
+            delta += (c - delta) * a
+            r = speed * delta / gain
+            yaw += r * h
+            x += speed * np.cos(yaw) * h
+            y += speed * np.sin(yaw) * h
+        return x, y, yaw
 
     def steer(self, state, x: float, y: float, yaw: float, speed: float):
-        idx, buf, head, out = state
-        idx, wanted = PathDriver(self.path, self.params, self.preview_time, self.min_lookahead,
-                                 self.max_steer).steer(idx, x, y, yaw, speed)
-        if buf:  # a ring buffer of the last delay / dt commands
-            wanted, buf[head] = buf[head], wanted
-            head = (head + 1) % len(buf)
-        out = wanted if self.lag == 0 else out + (wanted - out) * min(self.dt / self.lag, 1.0)
-        return (idx, buf, head, out), out
+        st = dict(state)
+        if st["k"] % max(int(round(self.TICK / self.dt)), 1) == 0:
+            xp, yp, yawp = self._predict(st, x, y, yaw, speed)
+            idx = self.path.closest(xp, yp, st["idx"])
+            px, py, ph = self.path.x[idx], self.path.y[idx], self._heading[idx]
+            e = -np.sin(ph) * (xp - px) + np.cos(ph) * (yp - py)  # left of the path positive
+            e_psi = (yawp - ph + np.pi) % (2 * np.pi) - np.pi
+            kappa = float(np.interp(self.path.s[idx] + speed * self.preview_time, self.path.s, self._kappa))
+            gain = self.params.wheelbase + self.params.understeer_gradient * speed ** 2
+            wanted = gain * kappa - e_psi - np.arctan(self.gain_lateral * e / (abs(speed) + 1.0))
+            wanted = float(np.clip(wanted, -self.max_steer, self.max_steer))
+            st["idx"] = idx
+            if st["buf"]:  # a ring buffer of the commands of the last delay / TICK ticks
+                buf = list(st["buf"])
+                wanted, buf[st["head"]] = buf[st["head"]], wanted
+                st["buf"], st["head"] = buf, (st["head"] + 1) % len(buf)
+            st["held"] = wanted
+        st["k"] += 1
+        a = min(self.dt / self.lag, 1.0) if self.lag > 0 else 1.0
+        st["out"] += (st["held"] - st["out"]) * a
+        return st, st["out"]
 
 
 @dataclass(frozen=True)
@@ -140,7 +186,8 @@ class DriverModel:
 
     delay: float = 0.15
     lag: float = 0.1
-    preview_time: float = 0.8
+    preview_time: float = 0.1
+    gain_lateral: float = 1.5
 
     def make(self, path: Path, params: VehicleParams, dt: float) -> HumanDriver:
-        return HumanDriver(path, params, dt, self.delay, self.lag, self.preview_time)
+        return HumanDriver(path, params, dt, self.delay, self.lag, self.preview_time, self.gain_lateral)
