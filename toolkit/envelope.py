@@ -191,7 +191,7 @@ class Metrics:
     cones_hit: int
     """Cones inside the body's outline at some instant (0 where the manoeuvre has none)."""
     added_steer_deg: float
-    """Peak |steer command - driver's steer| [deg road-wheel] (0 without control)."""
+    """Peak |the ECU's steer command - the driver's steer| [deg road-wheel] (0 without control)."""
     peak_yaw_moment: float
     """Peak |yaw-moment command| [N m]."""
     deviation_m: float
@@ -231,8 +231,8 @@ def metrics(r, man: Maneuver, p: VehicleParams) -> Metrics:
     if not np.all(np.isfinite(beta)):
         return LOST
     width = p.width if p.width is not None else max(p.track_front or 1.5, p.track_rear or 1.5) + 0.25
-    steer, drv = r.commands["steer"], r.commands.get("steer_driver")
-    added = 0.0 if drv is None else float(np.degrees(np.max(np.abs(steer - drv))))
+    cmd, drv = r.commands.get("steer_cmd"), r.commands.get("steer_driver")
+    added = 0.0 if cmd is None or drv is None else float(np.degrees(np.max(np.abs(cmd - drv))))
     nz = r.commands.get("yaw_moment_cmd", r.commands["yaw_moment"])
     dev = float("nan")
     if "gust" in man.events:

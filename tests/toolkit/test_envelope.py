@@ -79,7 +79,8 @@ class _Run:
         base = {k: np.zeros(n) for k in ("beta", "ay", "x", "y", "yaw")}
         base.update(truth)
         self.truth = base
-        self.commands = {"steer": np.zeros(n), "steer_driver": np.zeros(n), "yaw_moment_cmd": np.zeros(n),
+        self.commands = {"steer": np.zeros(n), "steer_cmd": np.zeros(n), "steer_driver": np.zeros(n),
+                         "yaw_moment_cmd": np.zeros(n),
                          "yaw_moment": np.zeros(n)}
 
 
