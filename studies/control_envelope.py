@@ -85,10 +85,12 @@ def _beta(x: float) -> str:
 
 
 def _row(plant: str, case, alone, runs) -> list:
-    """One line of the docs' table: the car alone, the controlled car's median and worst seed (by
-    peak sideslip; the crosswind by deviation), and the rules broken with the number of seeds."""
+    """One line of the docs' table: the car alone, the controlled car's median and worst seed (by cones
+    hit, then peak sideslip; the crosswind by deviation), and the rules broken, each as its worst seed
+    broke it, with the number of seeds that broke it."""
     mets = [m for _, m in runs]
-    key = (lambda m: m.deviation_m) if case.kind == "crosswind" else (lambda m: m.peak_beta_deg)
+    # worst: the most cones, then the largest sideslip (the crosswind: the largest deviation)
+    key = (lambda m: m.deviation_m) if case.kind == "crosswind" else (lambda m: (m.cones_hit, m.peak_beta_deg))
     order = sorted(mets, key=key)
     median, worst = order[len(order) // 2], order[-1]
 
@@ -97,7 +99,7 @@ def _row(plant: str, case, alone, runs) -> list:
         return text + (f", {m.deviation_m:.2f} m" if np.isfinite(m.deviation_m) else "")
 
     counts: dict = {}
-    for m in mets:
+    for m in reversed(order):  # worst first: each rule's message is its worst seed's
         for b in ev.judge(m, alone, case.mu_min):
             rule = b.split(":", 1)[0]
             counts.setdefault(rule, [0, b])[0] += 1

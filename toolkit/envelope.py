@@ -82,7 +82,7 @@ class Case:
         if self.kind == "friction-drop":
             mu = f"mu {self.mu:g} -> {self.mu_after:g}"
         elif self.kind.startswith("split-mu"):
-            mu = f"mu {self.mu:g} | {self.mu_after:g}"
+            mu = f"mu {self.mu:g} left, {self.mu_after:g} right"
         return f"{self.kind} {self.speed_kmh:.0f} km/h {mu}"
 
     @property
