@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 FMVSS_TESTS = ("tests/toolkit/test_fmvss126_criteria.py", "tests/toolkit/test_fmvss126.py")
 ENVELOPE_TESTS = ("tests/toolkit/test_envelope.py",)
+MARGIN_TESTS = ("tests/toolkit/test_margins.py",)
 
 CONSTANTS = {
     "toolkit/fmvss126.py": (FMVSS_TESTS, (
@@ -29,6 +30,7 @@ CONSTANTS = {
     "toolkit/envelope.py": (ENVELOPE_TESTS, (
         "HARM_FACTOR", "HARM_MARGIN_DEG", "SLIDE_DEG", "HELD_DEG", "NORMAL_USE", "QUIET_STEER_DEG",
         "QUIET_YAW_MOMENT", "GUST_SHARE", "GUST_AFTER", "OVERHANG")),
+    "toolkit/stability.py": (MARGIN_TESTS, ("DISK_MARGIN_MIN", "SENSITIVITY_PEAK_MAX")),
 }
 
 

@@ -40,11 +40,12 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.errors import DesignError
 
 from . import sweep as sw
-from .selection import BETTER_MARGIN, CUT_ROUNDS, TRUST_RADII, TUNING_STARTS, limit_constrained, tune_rounds
+from .selection import (BETTER_MARGIN, CUT_ROUNDS, TRUST_RADII, TUNING_STARTS, design_margins, limit_constrained,
+                        tune_rounds)
 from .analysis import SPEEDS_KMH, speed_grid
 from .estimation.spec import FilterDesign, NoiseSettings
 from .logio import atomic_write
-from .stability import estimator_loop, nominal_loop
+from .stability import DISK_MARGIN_MIN, SENSITIVITY_PEAK_MAX, estimator_loop, nominal_loop
 
 FORMAT = "evstab-design/1"
 
@@ -387,6 +388,10 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     summary = compare(rows)
     summary["tuned_is_paper"] = all(getattr(tuned, k) == getattr(paper, k) for k in sw.DesignPoint.TUNED)
     summary["limits"] = _limit_summary(limit_rows)
+    summary["margins"] = {pt.name: {k: m.as_dict() for k, m in design_margins(cfg, pt, cases).items()}
+                          for pt in (paper, tuned)}
+    summary["margin_constraint"] = {"disk_margin_min": DISK_MARGIN_MIN, "sensitivity_peak_max": SENSITIVITY_PEAK_MAX,
+                                    "speeds_kmh": list(SPEEDS_KMH)}
     points = [paper, tuned]
     grid, poles = analysis_rows(cfg, points)
     responses = response_rows(cfg, points)

@@ -143,6 +143,30 @@ def _case_text(r: dict) -> str:
     return f"case {r['case_id']} ({r['group']}: " + ", ".join(parts) + ")"
 
 
+def _gm(x: float) -> str:
+    return "inf" if not np.isfinite(x) else f"{x:.1f}"
+
+
+def margin_lines(s: dict, tuned: str) -> list[str]:
+    """The verdict box's margin line: the tuned design's worst margins on its own model and across the
+    model errors, against the constraint (:func:`toolkit.stability.margins_admissible`)."""
+    from .stability import RobustMargins, margins_admissible
+    mg, con = s.get("margins", {}), s.get("margin_constraint")
+    if tuned not in mg or "paper" not in mg or not con:
+        return []
+    n, e = (RobustMargins(**mg[tuned][k]) for k in ("nominal", "model_error"))
+    pe = RobustMargins(**mg["paper"]["model_error"])
+    why = margins_admissible(n, e, pe)
+    speeds = f"{min(con['speeds_kmh']):g}-{max(con['speeds_kmh']):g} km/h"
+    return [f"Margins ({speeds}, loop at a time at the plant inputs and outputs): on its own model disk margin "
+            f"{n.disk_margin:.2f} (at least {con['disk_margin_min']:g}), sensitivity peak {n.sensitivity_peak:.2f} "
+            f"(at most {con['sensitivity_peak_max']:g}); steer loop GM {_gm(n.gm_delta_db)} dB / PM "
+            f"{n.pm_delta_deg:.0f} deg, yaw-moment loop GM {_gm(n.gm_nz_db)} dB / PM {n.pm_nz_deg:.0f} deg. "
+            f"Across the model errors disk margin {e.disk_margin:.2f} ({e.where_disk}), sensitivity peak "
+            f"{e.sensitivity_peak:.2f} (the paper design's {pe.disk_margin:.2f} and {pe.sensitivity_peak:.2f}). "
+            "Margin constraint met: " + fmt(not why) + ("" if not why else " (" + "; ".join(why) + ")") + "."]
+
+
 def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], designs: list[str]) -> list[str]:
     """The first screen: stable or not, FMVSS 126 per friction, the limit rule, the weakest case."""
     s, tuned = doc["sweep"], designs[-1]
@@ -163,6 +187,7 @@ def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], desi
                      "than no control in every one: " + fmt(lim["no_worse_than_no_control"])
                      + ("" if lim["no_worse_than_no_control"] else " (" + "; ".join(lim["worse_than_no_control"]) + ")")
                      + ".")
+    lines += margin_lines(s, tuned)
     rows = by.get(tuned, {})
     if rows:
         w = rows[s[tuned]["worst_case_id"]]

@@ -25,6 +25,26 @@ after the other, when its candidate fails the limit check: each parameter within
 :data:`toolkit.tuning.BOUNDS`, e^2)."""
 
 
+def margin_plants(cfg, cases) -> list:
+    """The plants the margins are taken on besides the design's own model: the sweep cases' distinct
+    plant parameters (model errors), labelled by the first case that has them."""
+    seen: dict = {}
+    for c in cases:
+        q = c.plant_params(cfg.nominal)
+        seen.setdefault(q.digest(), (f"case {c.case_id} ({c.group})", q))
+    return list(seen.values())
+
+
+def design_margins(cfg, point, cases) -> dict:
+    """A design point's worst margins (:func:`toolkit.stability.robust_margins`) over the speed grid of
+    the analysis: ``{"nominal": on its own model, "model_error": across the sweep's plants}``."""
+    from .analysis import SPEEDS_KMH
+    from .stability import robust_margins
+    ctl = point.controller(cfg.base_design())
+    return {"nominal": robust_margins(ctl, [("its own model", cfg.nominal)], SPEEDS_KMH),
+            "model_error": robust_margins(ctl, margin_plants(cfg, cases), SPEEDS_KMH)}
+
+
 def tuning_ids(cases, rows_paper, quick):
     """The first tuning set: the paper design's worst cases, the hardest cases it still holds and
     the nominal case."""
