@@ -402,7 +402,9 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
                         f"tuning case; FMVSS 126 lateral displacement >= {DISPLACEMENT_MIN} m + "
                         f"{DISPLACEMENT_MARGIN} m in the held runs (of those at 5 A and above that no control and "
                         f"the paper design meet it in, the {lm.DISPLACEMENT_HELD} per surface and steer direction "
-                        "with the least margin under the paper design, and any a candidate missed); "
+                        "with the least margin under the paper design, and any a candidate missed); loop margins "
+                        f"(the margin constraint): disk margin >= {DISK_MARGIN_MIN:g} and sensitivity peak <= "
+                        f"{SENSITIVITY_PEAK_MAX:g} on the design's own model at every speed of the analysis grid; "
                         f"{TUNING_STARTS} IPOPT starts, the best feasible point of all",
               "fmvss126_displacement_runs": [r.label for r in displacement],
               "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
@@ -410,7 +412,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
               "limit_constraint": "no worse than no control on every limit manoeuvre (FMVSS 126 criteria run by "
                                   "run; peak sideslip within max(1.5 x no control, 3 deg), under 10 deg where no "
                                   "control slides), as many limit runs held as the paper design, no sweep case "
-                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's; else the "
+                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's, the margin "
+                                  "constraint met; else the "
                                   "tuning again with the FMVSS 126 runs the candidate missed held (the same box, "
                                   f"up to {CUT_ROUNDS} times), then with each parameter within a factor "
                                   + ", ".join(f"{np.exp(r):.3g}" for r in TRUST_RADII)

@@ -148,23 +148,25 @@ def _gm(x: float) -> str:
 
 
 def margin_lines(s: dict, tuned: str) -> list[str]:
-    """The verdict box's margin line: the tuned design's worst margins on its own model and across the
-    model errors, against the constraint (:func:`toolkit.stability.margins_admissible`)."""
+    """The verdict box's margin line: the tuned design's worst margins on its own model, against the
+    constraint (:func:`toolkit.stability.margins_admissible`), and across the model errors beside the
+    paper design's (reported, not constrained)."""
     from .stability import RobustMargins, margins_admissible
     mg, con = s.get("margins", {}), s.get("margin_constraint")
     if tuned not in mg or "paper" not in mg or not con:
         return []
     n, e = (RobustMargins(**mg[tuned][k]) for k in ("nominal", "model_error"))
     pe = RobustMargins(**mg["paper"]["model_error"])
-    why = margins_admissible(n, e, pe)
+    why = margins_admissible(n)
     speeds = f"{min(con['speeds_kmh']):g}-{max(con['speeds_kmh']):g} km/h"
     return [f"Margins ({speeds}, loop at a time at the plant inputs and outputs): on its own model disk margin "
             f"{n.disk_margin:.2f} (at least {con['disk_margin_min']:g}), sensitivity peak {n.sensitivity_peak:.2f} "
             f"(at most {con['sensitivity_peak_max']:g}); steer loop GM {_gm(n.gm_delta_db)} dB / PM "
             f"{n.pm_delta_deg:.0f} deg, yaw-moment loop GM {_gm(n.gm_nz_db)} dB / PM {n.pm_nz_deg:.0f} deg. "
-            f"Across the model errors disk margin {e.disk_margin:.2f} ({e.where_disk}), sensitivity peak "
-            f"{e.sensitivity_peak:.2f} (the paper design's {pe.disk_margin:.2f} and {pe.sensitivity_peak:.2f}). "
-            "Margin constraint met: " + fmt(not why) + ("" if not why else " (" + "; ".join(why) + ")") + "."]
+            "Margin constraint met: " + fmt(not why) + ("" if not why else " (" + "; ".join(why) + ")") + ". "
+            f"Across the model errors (not constrained) disk margin {e.disk_margin:.2f} ({e.where_disk}), "
+            f"sensitivity peak {e.sensitivity_peak:.2f} (the paper design's {pe.disk_margin:.2f} and "
+            f"{pe.sensitivity_peak:.2f})."]
 
 
 def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], designs: list[str]) -> list[str]:

@@ -71,7 +71,8 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
     :data:`toolkit.tuning.BOUNDS`) around the paper design.
 
     Round 1 tunes on ``ids`` (default :func:`tuning_ids`), with the FMVSS 126 runs ``displacement``
-    (:func:`toolkit.limits.displacement_runs`) as constraints. After each
+    (:func:`toolkit.limits.displacement_runs`) and the margin constraint (on the design's own model) as
+    constraints. After each
     round the candidate is swept; cases where the paper design is stable and the
     candidate is not, and the candidate's worst case, join the tuning set, and the
     next round starts again from the paper design (feasible for every cap). The result is the candidate with the
@@ -80,8 +81,10 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
 
     Returns ``(point, its sweep rows, the rounds' records, the tuning set as it ended)``.
     """
-    from .tuning import BOUNDS, tune
+    from .analysis import SPEEDS_KMH
+    from .tuning import BOUNDS, MarginConstraint, tune
     paper = cfg.paper
+    margins = MarginConstraint(tuple(SPEEDS_KMH))
     bounds = BOUNDS if bounds is None else bounds
     max_iter, max_rounds = (12, 2) if quick else (25, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}
@@ -91,7 +94,7 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
     for k in range(max_rounds):
         res = tune(cfg, [cases[i] for i in ids], start, max_iter=max_iter, caps=regression_caps(ids, rows_paper),
                    bounds=bounds,
-                   displacement=displacement, starts=TUNING_STARTS,
+                   displacement=displacement, starts=TUNING_STARTS, margins=margins,
                    workers=workers if executor == "local" else None, progress=progress)
         cand = dataclasses.replace(res.point, name="tuned")
         rows = sw.run_sweep(cfg, cases, [cand], executor=executor, scheduler=scheduler, workers=workers,
@@ -128,8 +131,9 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
 
     The tuning's candidate is driven through the limit manoeuvres; it is accepted when it is no
     worse than no control on every limit case (where the paper design is), passes FMVSS 126 and
-    as many limit runs as the paper design, loses no case of the sweep the paper design holds, and
-    beats the paper design's worst case by :data:`BETTER_MARGIN`. Otherwise the tuning runs again
+    as many limit runs as the paper design, loses no case of the sweep the paper design holds,
+    beats the paper design's worst case by :data:`BETTER_MARGIN` and meets the margin constraint
+    (:func:`toolkit.stability.margins_admissible`; the tuning holds its candidates to it already). Otherwise the tuning runs again
     (``retune(radius, missed)`` returns a candidate and its sweep rows, or None when ``missed``
     names no run it could hold that it does not hold already), and each candidate is checked the
     same way; the first accepted is the tuned design:
@@ -147,6 +151,7 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
 
     Returns ``(point, sweep rows, limit rows of no control / paper / tuned, selection log)``."""
     from . import limits as lm
+    from .stability import margins_admissible
     from .tuning import BOUNDS
     none, paper_lim, a_cache = limits_start
     last: dict = {}
@@ -186,6 +191,8 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
             why.append(f"loses stability in sweep case(s) {' '.join(map(str, lost))}")
         if not worst < (1.0 - BETTER_MARGIN) * paper_worst:
             why.append(f"worst cost {worst:.4g} not {BETTER_MARGIN:.0%} below the paper design's {paper_worst:.4g}")
+        margins = design_margins(cfg, point, cases)
+        why += ["margins: " + w for w in margins_admissible(margins["nominal"])]
         tried.append({**entry, "admissible": j["admissible"], "fmvss126_pass": j["fmvss126_pass"],
                       "limit_runs_passed": j["limit_runs_passed"], "limit_runs": j["limit_runs"],
                       "accepted": not why, "rejected_because": "; ".join(why)})

@@ -378,10 +378,12 @@ loop-breaking point (the plant inputs delta, N_z and outputs beta, r), at every 
 grid, on the design's own model, at least this [-] (the loop tolerates a gain change between x0.6 and
 x1.67 together with a phase change of up to +-28 deg: ``(1 -+ a/2) / (1 +- a/2)`` and ``2 atan(a/2)``) ..."""
 SENSITIVITY_PEAK_MAX = 2.0
-"""... and the sensitivity peak there at most this [-] (6 dB). Across the sweep's model errors a tuned
-design must be no less robust than the paper design (:func:`margins_admissible`). The design job
-reports the margins against this constraint (``design.json`` ``sweep.margins``, the report's verdict);
-its tuning does not yet hold a candidate to it."""
+"""... and the sensitivity peak there at most this [-] (6 dB) (:func:`margins_admissible`). The design
+job's tuning holds its candidates to it (:class:`toolkit.tuning.MarginConstraint`), its selection checks
+it, and the report's verdict states it with the margins across the sweep's model errors beside it
+(``design.json`` ``sweep.margins``): those are reported, not constrained (the paper design's own least
+disk margin there is 0.15, and in the full sweep a bound relative to it pins the tuning to the paper
+design)."""
 
 
 @dataclass(frozen=True)
@@ -423,25 +425,40 @@ def robust_margins(ctl: TwoDofDesign, plants: list[tuple[str, VehicleParams]], s
     return RobustMargins(dm[0], sp[0], gm["delta"], pm["delta"], gm["Nz"], pm["Nz"], dm[1], sp[1])
 
 
-def margins_admissible(nominal: RobustMargins, model_error: RobustMargins, paper_model_error: RobustMargins
-                       ) -> list[str]:
-    """Why a design's margins break the constraint (empty: they meet it): on its own model at least
-    :data:`DISK_MARGIN_MIN` and at most :data:`SENSITIVITY_PEAK_MAX`; across the model errors no
-    smaller a disk margin and no larger a sensitivity peak than the paper design's there (or than the
-    bounds, where the paper design is within them)."""
+def margins_admissible(nominal: RobustMargins) -> list[str]:
+    """Why a design's margins on its own model break the constraint (empty: they meet it): a disk margin
+    of at least :data:`DISK_MARGIN_MIN` and a sensitivity peak of at most :data:`SENSITIVITY_PEAK_MAX`."""
     why = []
     if not nominal.disk_margin >= DISK_MARGIN_MIN:
         why.append(f"disk margin {nominal.disk_margin:.2f} < {DISK_MARGIN_MIN:g} ({nominal.where_disk})")
     if not nominal.sensitivity_peak <= SENSITIVITY_PEAK_MAX:
         why.append(f"sensitivity peak {nominal.sensitivity_peak:.2f} > {SENSITIVITY_PEAK_MAX:g} "
                    f"({nominal.where_sensitivity})")
-    floor = min(DISK_MARGIN_MIN, paper_model_error.disk_margin)
-    if not model_error.disk_margin >= floor:
-        why.append(f"disk margin {model_error.disk_margin:.2f} < {floor:.2f} across the model errors "
-                   f"({model_error.where_disk}; the paper design's least {paper_model_error.disk_margin:.2f})")
-    ceiling = max(SENSITIVITY_PEAK_MAX, paper_model_error.sensitivity_peak)
-    if not model_error.sensitivity_peak <= ceiling:
-        why.append(f"sensitivity peak {model_error.sensitivity_peak:.2f} > {ceiling:.2f} across the model errors "
-                   f"({model_error.where_sensitivity}; the paper design's largest "
-                   f"{paper_model_error.sensitivity_peak:.2f})")
     return why
+
+
+MARGIN_OMEGA = np.logspace(-2, 3, 1500)
+"""[rad/s] The frequency grid of the margins (:func:`channel_margins`' default)."""
+
+
+def loop_margins(ctl: TwoDofDesign, true_params: VehicleParams, speed: float,
+                 omega: np.ndarray = MARGIN_OMEGA) -> tuple[float, float]:
+    """``(disk margin, sensitivity peak)`` of :func:`nominal_loop`'s loop, the least and the largest over
+    its four loop-breaking points, from the 2 x 2 frequency responses in numpy (what
+    :func:`channel_margins` finds through python-control's interconnection, 100 times faster: the
+    tuning evaluates it at every iteration). With ``G = K P`` at the plant inputs and ``G = P K`` at its
+    outputs (``P`` the bicycle, ``K = Kp + Ki / s`` the law's feedback), breaking channel 1 with
+    channel 2 closed leaves ``L = G11 - G12 G21 / (1 + G22)``."""
+    A, B = lateral_matrices(true_params, speed)
+    _, Kp, Ki, _ = ctl.gains(speed)
+    s = 1j * np.asarray(omega, float)
+    P = np.linalg.solve(s[:, None, None] * np.eye(2) - A, np.broadcast_to(B.astype(complex), (len(s), 2, 2)))
+    K = Kp[None] + Ki[None] / s[:, None, None]
+    dm, peak = float("inf"), 0.0
+    for G in (K @ P, P @ K):
+        for i, j in ((0, 1), (1, 0)):
+            L = G[:, i, i] - G[:, i, j] * G[:, j, i] / (1.0 + G[:, j, j])
+            S = 1.0 / (1.0 + L)
+            dm = min(dm, float(1.0 / np.max(np.abs(S - 0.5))))
+            peak = max(peak, float(np.max(np.abs(S))))
+    return dm, peak

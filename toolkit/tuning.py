@@ -375,6 +375,37 @@ def _displacement_subset(phi: np.ndarray, idx: list[int]):
             for i, (a, da) in zip(idx, acc)]
 
 
+@dataclass(frozen=True)
+class MarginConstraint:
+    """The margin constraint (:func:`toolkit.stability.margins_admissible`) as the tuning holds it: the
+    disk margin and sensitivity peak of the loop (:func:`toolkit.stability.loop_margins`) on the design's
+    own model at every speed of ``speeds_kmh``."""
+
+    speeds_kmh: tuple
+
+
+def margin_values(cfg: SweepConfig, phi: np.ndarray, mc: MarginConstraint) -> np.ndarray:
+    """``[disk margin, -sensitivity peak]`` of the design point ``phi`` on the design's own model: the
+    least margin and the largest peak over the speeds."""
+    from .stability import loop_margins
+    ctl = point_of(phi).controller(cfg.base_design())
+    vals = [loop_margins(ctl, cfg.nominal, kmh / 3.6) for kmh in mc.speeds_kmh]
+    return np.array([min(v[0] for v in vals), -max(v[1] for v in vals)])
+
+
+MARGIN_PARAMETERS = ("k_beta", "k_gamma")
+"""The tuned parameters the loop's margins depend on (the controller's; the noise intensities act on the
+estimator only)."""
+
+
+def margin_floors(start: np.ndarray) -> np.ndarray:
+    """The lower bounds of :func:`margin_values`' rows for a tuning that starts from a point with the
+    values ``start``: the constraint's bounds, or the start's own values where it misses them (a start
+    that breaks a bound would make the problem infeasible from its first point)."""
+    from .stability import DISK_MARGIN_MIN, SENSITIVITY_PEAK_MAX
+    return np.minimum(np.array([DISK_MARGIN_MIN, -SENSITIVITY_PEAK_MAX]), np.asarray(start, float)) - 1e-9
+
+
 def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[float]:
     p = point_of(phi)
     return [decay_rate(cfg, c, p) for c in cases]
@@ -383,7 +414,8 @@ def _sigma_subset(cfg: SweepConfig, cases: list[Case], phi: np.ndarray) -> list[
 def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, *, max_iter: int = 30,
          stability_cases: list[Case] | None = None, caps: list[float] | None = None, bounds: float = BOUNDS,
          displacement: list[DisplacementRun] | None = None, starts: int = 1, verbose: bool = False,
-         workers: int | None = None, progress: bool = False) -> TuningResult:
+         workers: int | None = None, progress: bool = False, margins: MarginConstraint | None = None
+         ) -> TuningResult:
     """IPOPT on the epigraph problem above; returns the tuned design point and the figures.
 
     ``progress``: a progress bar on stderr, one step per cost-and-gradient evaluation (IPOPT
@@ -407,6 +439,11 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     ``displacement``: FMVSS 126 runs (:class:`DisplacementRun`) whose lateral displacement stays at or
     above their bound plus :data:`DISPLACEMENT_MARGIN` (constraints, with their gradients by the
     same forward-mode rollouts); the tuned point meets every bound itself.
+
+    ``margins``: the loop's disk margin and sensitivity peak on the design's own model held to
+    :func:`margin_floors` (at least :data:`toolkit.stability.DISK_MARGIN_MIN` and at most
+    :data:`toolkit.stability.SENSITIVITY_PEAK_MAX`), with forward-difference gradients in K_beta and
+    K_gamma.
 
     ``start`` defaults to :attr:`SweepConfig.paper`.
     """
@@ -506,6 +543,24 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
         displacements = _Function("displacements", n_phi, n_d, lambda phi: evaluate(phi)[2],
                                   lambda phi: evaluate(phi)[3])
         g = ca.vertcat(g, displacements(phi))
+    margin_cache: dict = {}
+
+    def margin_of(ph):
+        key = tuple(np.round(ph, 15))
+        if key not in margin_cache:
+            margin_cache[key] = margin_values(cfg, ph, margins)
+        return margin_cache[key]
+
+    def margin_jacobian(ph):
+        h, base = 1e-4, margin_of(ph)
+        jac = np.zeros((2, n_phi))
+        for name in MARGIN_PARAMETERS:
+            k = DesignPoint.TUNED.index(name)
+            jac[:, k] = (margin_of(ph + h * np.eye(n_phi)[k]) - base) / h
+        return jac
+    if margins is not None:
+        margin_fn = _Function("margins", n_phi, 2, margin_of, margin_jacobian)
+        g = ca.vertcat(g, margin_fn(phi))
     solver = ca.nlpsol("tune", "ipopt", {"x": x, "f": t, "g": g},
                        {"ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter,
                         "ipopt.print_level": 5 if verbose else 0, "ipopt.sb": "no" if verbose else "yes",
@@ -516,16 +571,19 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     # slow modes, the heading and the gyro bias, hardly move with these parameters: a margin the start
     # misses would make the problem infeasible from its first point)
     sigma_floor = np.minimum(SIGMA_MIN, sigma_values(phi0))
+    m_floor = margin_floors(margin_of(phi0)) if margins is not None else np.zeros(0)
 
     def feasible(J, D, ph):
         return bool(np.all(J <= caps_arr * (1 + 1e-9)) and np.all(D >= bound)
-                    and np.all(sigma_values(ph) >= sigma_floor))
+                    and np.all(sigma_values(ph) >= sigma_floor)
+                    and (margins is None or np.all(margin_of(ph) >= m_floor)))
     x0 = np.concatenate([phi0, [float(np.log(np.max(J0))) + 1e-3]])
     lbx = np.concatenate([phi0 - bounds, [-np.inf]])
     ubx = np.concatenate([phi0 + bounds, [np.inf]])
     lbg = np.concatenate([np.full(m, -np.inf), sigma_floor, np.full(m, -np.inf),
-                          bound + DISPLACEMENT_MARGIN])
-    ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), np.log(caps_arr), np.full(n_d, np.inf)])
+                          bound + DISPLACEMENT_MARGIN, m_floor])
+    ubg = np.concatenate([np.zeros(m), np.full(len(stab), np.inf), np.log(caps_arr), np.full(n_d, np.inf),
+                          np.full(len(m_floor), np.inf)])
     # the other starts: fixed points of the box (seeded), the same for every run of the same problem
     rng = np.random.default_rng(STARTS_SEED)
     others = [phi0 + rng.uniform(-0.5 * bounds, 0.5 * bounds, n_phi) for _ in range(starts - 1)]
