@@ -1,7 +1,8 @@
 """Mutation check of the rules' thresholds: each named constant of a scorer, moved by +10 % and by
 -10 %, must fail at least one test.
 
-Run: ``python tests/mutants.py [NAME ...]`` from the repository's root (a few minutes). It edits
+Run: ``python tests/mutants.py [NAME ...]`` from the repository's root (about 15 minutes; the design
+job's limit rules are judged by the fast tests of ``tests/toolkit/test_limits.py`` only). It edits
 one constant at a time in place, runs the tests that judge it, and restores the file (also on
 Ctrl-C); it refuses to start while a file it edits has uncommitted changes. Prints one row per
 mutant, ``killed`` (a test failed) or ``SURVIVED``, and exits 1 if any survived.
@@ -31,6 +32,10 @@ CONSTANTS = {
         "HARM_FACTOR", "HARM_MARGIN_DEG", "SLIDE_DEG", "HELD_DEG", "NORMAL_USE", "QUIET_STEER_DEG",
         "QUIET_YAW_MOMENT", "GUST_SHARE", "GUST_AFTER", "OVERHANG")),
     "toolkit/stability.py": (MARGIN_TESTS, ("DISK_MARGIN_MIN", "SENSITIVITY_PEAK_MAX")),
+    "toolkit/limits.py": (tuple(f"tests/toolkit/test_limits.py::{t}" for t in (
+        "test_sideslip_bound_follows_the_uncontrolled_car", "test_a_car_past_10_deg_of_sideslip_has_spun",
+        "test_the_uncontrolled_slide_is_judged_against_10_deg", "test_the_step_case_asks_one_and_a_half_times_the_friction")),
+        ("SPIN_DEG", "SIDESLIP_FACTOR", "SIDESLIP_FLOOR_DEG", "STEP_SATURATION")),
 }
 
 

@@ -80,14 +80,25 @@ def _fmvss(p, plant, mu, controller, estimator, design, a_cache: dict) -> dict:
             "_displacement": [r["lateral_displacement_m"] for r in rows]}
 
 
-def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> dict:
-    from .simulator import SimulationError, simulate
+def sideslip_result(peak: float) -> dict:
+    """A sideslip case's result from its peak |sideslip| [deg] (inf: the car was lost): the peak, and
+    whether the car spun (a peak of :data:`SPIN_DEG` or more)."""
+    return {"peak_beta_deg": peak, "spun": not peak < SPIN_DEG}
+
+
+def case_maneuver(p, case: LimitCase):
+    """The manoeuvre of a sideslip case: ISO 3888-1 with the path-following driver, or the step steer
+    asking the nominal linear car for :data:`STEP_SATURATION` x ``mu g`` (from 0.5 s, 4 s long)."""
     v = case.speed_kmh / 3.6
     if case.kind == "iso3888-1":
-        man = make_maneuver("iso3888-1", p, v)
-    else:
-        man = step_steer(v, steer_for_lateral_acceleration(p, v, STEP_SATURATION * case.mu * G), start=0.5,
-                         duration=4.0)
+        return make_maneuver("iso3888-1", p, v)
+    return step_steer(v, steer_for_lateral_acceleration(p, v, STEP_SATURATION * case.mu * G), start=0.5,
+                      duration=4.0)
+
+
+def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> dict:
+    from .simulator import SimulationError, simulate
+    man = case_maneuver(p, case)
     try:
         r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=case.mu)), seed=0,
                      controller=controller, estimator=estimator, design=design)
@@ -95,7 +106,7 @@ def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> d
         peak = float(np.degrees(np.max(beta))) if np.all(np.isfinite(beta)) else float("inf")
     except SimulationError:  # rolled over or diverged: the car is lost
         peak = float("inf")
-    return {"peak_beta_deg": peak, "spun": not peak < SPIN_DEG}
+    return sideslip_result(peak)
 
 
 def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None, name: str | None = None) -> dict:

@@ -25,13 +25,37 @@ def test_fmvss_no_worse_is_run_by_run_and_criterion_by_criterion():
 
 
 def test_sideslip_bound_follows_the_uncontrolled_car():
-    row = lambda peak: {"kind": "iso3888-1", "peak_beta_deg": peak, "spun": not peak < lm.SPIN_DEG}
+    row = lambda peak: {"kind": "iso3888-1", **lm.sideslip_result(peak)}
     # uncontrolled 1.0 deg: the bound is the 3 deg floor; uncontrolled 4 deg: 1.5 x 4 = 6 deg
     assert lm.no_worse(row(3.0), row(1.0))[0] and not lm.no_worse(row(3.01), row(1.0))[0]
     assert lm.no_worse(row(6.0), row(4.0))[0] and not lm.no_worse(row(6.01), row(4.0))[0]
     # the uncontrolled car slides: anything that holds the car is no worse, a bigger slide is
     assert lm.no_worse(row(9.0), row(60.0))[0] and not lm.no_worse(row(70.0), row(60.0))[0]
     assert not lm.no_worse(row(float("inf")), row(1.0))[0]  # lost (rolled over / diverged)
+
+
+@pytest.mark.parametrize("peak, spun", [(9.99, False), (10.0, True), (10.01, True), (float("inf"), True)])
+def test_a_car_past_10_deg_of_sideslip_has_spun(peak, spun):
+    assert lm.sideslip_result(peak)["spun"] == spun
+
+
+def test_the_uncontrolled_slide_is_judged_against_10_deg():
+    # the car alone at 9.9 deg holds (the bound is max(1.5 x 9.9, 3) = 14.85 deg); at 10.1 deg it
+    # slid, and then the controlled car must stay under 10 deg or below the car alone's peak
+    row = lambda peak: {"kind": "step", **lm.sideslip_result(peak)}
+    assert lm.no_worse(row(14.8), row(9.9))[0] and not lm.no_worse(row(14.9), row(9.9))[0]
+    assert not lm.no_worse(row(10.2), row(10.1))[0] and lm.no_worse(row(9.9), row(10.1))[0]
+
+
+def test_the_step_case_asks_one_and_a_half_times_the_friction():
+    # the step at 80 km/h on mu 0.5 asks the nominal linear car for 1.5 x 0.5 g = 7.36 m/s^2:
+    # delta = L (1 + K v^2) a_y / v^2 (the linear bicycle's steady state), held from 0.65 s
+    from evstab.plants import G
+    p = load_vehicle("compact-ev")
+    man = lm.case_maneuver(p, lm.LimitCase("step", 0.5))
+    v = 80 / 3.6
+    expected = p.wheelbase * (1 + p.stability_factor * v ** 2) * 1.5 * 0.5 * G / v ** 2
+    assert man.steer(np.array([2.0]))[0] == pytest.approx(expected, rel=1e-12)
 
 
 def test_compare_needs_the_stated_margin():
