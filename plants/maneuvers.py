@@ -211,17 +211,23 @@ def iso3888_1_cones(vehicle_width: float) -> np.ndarray:
     return lane_cones(iso3888_1_lanes(vehicle_width))
 
 
-def iso3888_1(speed: float, vehicle_width: float, *, lead_in: float = 30.0, run_out: float = 40.0) -> Maneuver:
-    """ISO 3888-1 double lane change, driver follows the lane centres (cosine transitions)."""
-    g = iso3888_1_lanes(vehicle_width)
+def lane_line(g: dict, lead_in: float, run_out: float) -> Path:
+    """The planned line through a lane geometry's (:func:`iso3888_1_lanes`, :func:`iso3888_2_lanes`)
+    lane centres, with cosine transitions over sections 2 and 4, from ``lead_in`` m before the entry to
+    ``run_out`` m after the exit."""
     c1, c3, c5 = (0.5 * sum(g[k]) for k in ("lane1", "lane3", "lane5"))
-    (_, e1), (s2, e2), (_, e3), (s4, e4), _ = g["sections"]
+    _, (s2, e2), _, (s4, e4), _ = g["sections"]
 
     def y_of_x(x):
         y = _blend(x, s2, e2 - s2, c1, c3)
         return np.where(x >= s4, _blend(x, s4, e4 - s4, c3, c5), y)
 
-    path = path_from_function(y_of_x, -lead_in, g["sections"][-1][1] + run_out)
+    return path_from_function(y_of_x, -lead_in, g["sections"][-1][1] + run_out)
+
+
+def iso3888_1(speed: float, vehicle_width: float, *, lead_in: float = 30.0, run_out: float = 40.0) -> Maneuver:
+    """ISO 3888-1 double lane change, driver follows the lane centres (cosine transitions)."""
+    path = lane_line(iso3888_1_lanes(vehicle_width), lead_in, run_out)
     duration = (path.length - 10.0) / max(speed, 0.5)
     return Maneuver("iso3888-1", speed, duration, path=path, cones=iso3888_1_cones(vehicle_width),
                     events={"lane_offset": 3.5})
@@ -265,14 +271,7 @@ def iso3888_2(speed: float, vehicle_width: float, *, driver=None, lead_in: float
     and lag)."""
     from .paths import DriverModel
     g = iso3888_2_lanes(vehicle_width)
-    c1, c3, c5 = (0.5 * sum(g[k]) for k in ("lane1", "lane3", "lane5"))
-    (_, _), (s2, e2), (_, _), (s4, e4), _ = g["sections"]
-
-    def y_of_x(x):
-        y = _blend(x, s2, e2 - s2, c1, c3)
-        return np.where(x >= s4, _blend(x, s4, e4 - s4, c3, c5), y)
-
-    path = path_from_function(y_of_x, -lead_in, g["sections"][-1][1] + run_out)
+    path = lane_line(g, lead_in, run_out)
     duration = (path.length - 10.0) / max(speed, 0.5)
     return Maneuver("iso3888-2", speed, duration, path=path, cones=lane_cones(g), coast_from=lead_in / max(speed, 0.5),
                     driver=DriverModel() if driver is None else driver, events={"entry": lead_in / max(speed, 0.5)})
