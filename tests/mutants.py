@@ -1,8 +1,9 @@
 """Mutation check of the rules' thresholds: each named constant of a scorer, moved by +10 % and by
 -10 %, must fail at least one test.
 
-Run: ``python tests/mutants.py [NAME ...]`` from the repository's root (about 15 minutes; the design
-job's limit rules are judged by the fast tests of ``tests/toolkit/test_limits.py`` only). It edits
+Run: ``python tests/mutants.py [NAME ...]`` from the repository's root (the design job's limit rules
+are judged by the fast tests of ``tests/toolkit/test_limits.py`` only; a mutant the fast tests do not
+kill runs into ``tests/toolkit/test_fmvss126.py``'s series on the simulated car, minutes each). It edits
 one constant at a time in place, runs the tests that judge it, and restores the file (also on
 Ctrl-C); it refuses to start while a file it edits has uncommitted changes. Prints one row per
 mutant, ``killed`` (a test failed) or ``SURVIVED``, and exits 1 if any survived.
