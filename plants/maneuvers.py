@@ -135,6 +135,12 @@ def sine_with_dwell(speed: float, amplitude: float, *, frequency: float = 0.7, d
                             "steer_end": start + t_end})
 
 
+def vehicle_width(p: VehicleParams) -> float:
+    """The car's overall width [m] for cone lanes and cone hits: the file's ``width``, else the wider
+    track plus 0.25 m."""
+    return p.width if p.width is not None else max(p.track_front or 0.0, p.track_rear or 0.0) + 0.25
+
+
 def steer_for_lateral_acceleration(p: VehicleParams, speed: float, ay: float) -> float:
     """Road-wheel steer [rad] giving lateral acceleration ``ay`` in steady state (linear bicycle).
 
@@ -272,9 +278,9 @@ def iso3888_2(speed: float, vehicle_width: float, *, driver=None, lead_in: float
     from .paths import DriverModel
     g = iso3888_2_lanes(vehicle_width)
     path = lane_line(g, lead_in, run_out)
-    duration = (path.length - 10.0) / max(speed, 0.5)
-    return Maneuver("iso3888-2", speed, duration, path=path, cones=lane_cones(g), coast_from=lead_in / max(speed, 0.5),
-                    driver=DriverModel() if driver is None else driver, events={"entry": lead_in / max(speed, 0.5)})
+    duration, entry = (path.length - 10.0) / max(speed, 0.5), lead_in / max(speed, 0.5)
+    return Maneuver("iso3888-2", speed, duration, path=path, cones=lane_cones(g), coast_from=entry,
+                    driver=DriverModel() if driver is None else driver, events={"entry": entry})
 
 
 def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: int = 7, clearance: float = 0.2,
@@ -288,8 +294,7 @@ def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: 
     x_end = spacing * (cones - 1)
 
     def y_of_x(x):
-        inside = (x >= -0.5 * spacing) & (x <= x_end + 0.5 * spacing)
-        return np.where(inside, -amp * np.cos(np.pi * x / spacing), 0.0) * _smooth_gate(x, spacing, x_end)
+        return -amp * np.cos(np.pi * x / spacing) * _smooth_gate(x, spacing, x_end)
 
     path = path_from_function(y_of_x, -lead_in, x_end + run_out)
     cone_xy = np.column_stack([spacing * np.arange(cones), np.zeros(cones)])
@@ -299,7 +304,8 @@ def slalom(speed: float, vehicle_width: float, *, spacing: float = 18.0, cones: 
 
 
 def _smooth_gate(x, spacing, x_end):
-    """1 over the cones, rising and falling over the half spacing before the first and after the last."""
+    """1 over the cones, rising and falling over the half spacing before the first and after the last,
+    0 beyond."""
     up = 0.5 * (1.0 - np.cos(np.pi * np.clip((x + 0.5 * spacing) / (0.5 * spacing), 0.0, 1.0)))
     down = 0.5 * (1.0 - np.cos(np.pi * np.clip((x_end + 0.5 * spacing - x) / (0.5 * spacing), 0.0, 1.0)))
     return up * down
@@ -381,8 +387,7 @@ def make_maneuver(name: str, p: VehicleParams, speed: float, amplitude: float | 
     if name == "constant-radius":
         return constant_radius(speed)
     if name == "iso3888-1":
-        width = p.width if p.width is not None else (max(p.track_front or 0, p.track_rear or 0) + 0.25)
-        return iso3888_1(speed, width)
+        return iso3888_1(speed, vehicle_width(p))
     if name == "dlc-000":
         return dlc_000(speed)
     raise ManeuverError(f"unknown manoeuvre '{name}'; known: {', '.join(MANEUVERS)}")

@@ -38,7 +38,7 @@ from evstab.plants import G, VehicleParams, is_multibody
 from evstab.plants.disturbances import Disturbances, Friction, Wind
 from evstab.plants.errors import ManeuverError
 from evstab.plants.maneuvers import (Maneuver, iso3888_2, random_steer, sine_lane_change, sine_with_dwell, slalom,
-                                     step_steer, steer_for_lateral_acceleration)
+                                     step_steer, steer_for_lateral_acceleration, vehicle_width)
 
 HARM_FACTOR = 1.1
 """Where the car alone passes, the controlled car's peak sideslip may exceed the uncontrolled one's
@@ -140,7 +140,7 @@ def run_setup(case: Case, p: VehicleParams) -> tuple[Maneuver, Disturbances, Veh
     """The manoeuvre, the road and, for ``loaded``, the truth parameters (else None) of ``case`` for
     a car whose nominal parameters are ``p``."""
     v = case.speed_kmh / 3.6
-    width = p.width if p.width is not None else max(p.track_front or 1.5, p.track_rear or 1.5) + 0.25
+    width = vehicle_width(p)
     road = Disturbances(friction=Friction(mu=case.mu))
     truth = None
     if case.kind in ("step", "loaded"):
@@ -231,7 +231,7 @@ def metrics(r, man: Maneuver, p: VehicleParams) -> Metrics:
     beta = np.asarray(r.truth["beta"], float)
     if not np.all(np.isfinite(beta)):
         return LOST
-    width = p.width if p.width is not None else max(p.track_front or 1.5, p.track_rear or 1.5) + 0.25
+    width = vehicle_width(p)
     cmd, drv = r.commands.get("steer_cmd"), r.commands.get("steer_driver")
     added = 0.0 if cmd is None or drv is None else float(np.degrees(np.max(np.abs(cmd - drv))))
     nz = r.commands.get("yaw_moment_cmd", r.commands["yaw_moment"])

@@ -35,14 +35,17 @@ def margin_plants(cfg, cases) -> list:
     return list(seen.values())
 
 
-def design_margins(cfg, point, cases) -> dict:
+def design_margins(cfg, point, cases=None) -> dict:
     """A design point's worst margins (:func:`toolkit.stability.robust_margins`) over the speed grid of
-    the analysis: ``{"nominal": on its own model, "model_error": across the sweep's plants}``."""
+    the analysis: ``{"nominal": on its own model, "model_error": across the sweep's plants}`` (without
+    ``cases``, the first only: what the margin constraint judges)."""
     from .analysis import SPEEDS_KMH
     from .stability import robust_margins
     ctl = point.controller(cfg.base_design())
-    return {"nominal": robust_margins(ctl, [("its own model", cfg.nominal)], SPEEDS_KMH),
-            "model_error": robust_margins(ctl, margin_plants(cfg, cases), SPEEDS_KMH)}
+    out = {"nominal": robust_margins(ctl, [("its own model", cfg.nominal)], SPEEDS_KMH)}
+    if cases is not None:
+        out["model_error"] = robust_margins(ctl, margin_plants(cfg, cases), SPEEDS_KMH)
+    return out
 
 
 def tuning_ids(cases, rows_paper, quick):
@@ -191,8 +194,7 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
             why.append(f"loses stability in sweep case(s) {' '.join(map(str, lost))}")
         if not worst < (1.0 - BETTER_MARGIN) * paper_worst:
             why.append(f"worst cost {worst:.4g} not {BETTER_MARGIN:.0%} below the paper design's {paper_worst:.4g}")
-        margins = design_margins(cfg, point, cases)
-        why += ["margins: " + w for w in margins_admissible(margins["nominal"])]
+        why += ["margins: " + w for w in margins_admissible(design_margins(cfg, point)["nominal"])]
         tried.append({**entry, "admissible": j["admissible"], "fmvss126_pass": j["fmvss126_pass"],
                       "limit_runs_passed": j["limit_runs_passed"], "limit_runs": j["limit_runs"],
                       "accepted": not why, "rejected_because": "; ".join(why)})

@@ -458,7 +458,6 @@ def loop_margins(ctl: TwoDofDesign, true_params: VehicleParams, speed: float,
     for G in (K @ P, P @ K):
         for i, j in ((0, 1), (1, 0)):
             L = G[:, i, i] - G[:, i, j] * G[:, j, i] / (1.0 + G[:, j, j])
-            S = 1.0 / (1.0 + L)
-            dm = min(dm, float(1.0 / np.max(np.abs(S - 0.5))))
-            peak = max(peak, float(np.max(np.abs(S))))
+            dm = min(dm, disk_margin(L))
+            peak = max(peak, float(np.max(np.abs(1.0 / (1.0 + L)))))
     return dm, peak
