@@ -13,7 +13,7 @@ Writes ``envelope.csv`` (one row per car, case and seed), ``envelope_table.md`` 
 the car alone, the controlled car's median and worst seed, the rules broken) and
 ``envelope_summary.md`` (per car and subset: cases, cases with a rule broken).
 
-Run: ``python -m evstab.studies.control_envelope OUT_DIR [--quick]`` (about 10 minutes on 2 cores;
+Run: ``python -m evstab.studies.control_envelope OUT_DIR [--quick]`` (about 8 minutes on one core;
 quick, for the test suite: compact-ev, the six cases of :data:`QUICK`, two seeds).
 """
 
@@ -59,7 +59,7 @@ def main(out, quick: bool = False) -> list[dict]:
             alone = ev.run(case, p, plant, controller=None)
             runs = [(seed, ev.run(case, p, plant, seed=seed)) for seed in seeds]
             for seed, met in runs:
-                broken = ev.judge(met, alone, case.mu_min)
+                broken = ev.judge(met, alone, case.mu_min, case.disturbance)
                 rows.append({"car": plant, "case": case.label, "subset": case.subset, "seed": seed,
                              "alone_beta_deg": alone.peak_beta_deg, "alone_cones": alone.cones_hit,
                              "alone_ay": alone.peak_ay, "alone_deviation_m": alone.deviation_m,
@@ -100,7 +100,7 @@ def _row(plant: str, case, alone, runs) -> list:
 
     counts: dict = {}
     for m in reversed(order):  # worst first: each rule's message is its worst seed's
-        for b in ev.judge(m, alone, case.mu_min):
+        for b in ev.judge(m, alone, case.mu_min, case.disturbance):
             rule = b.split(":", 1)[0]
             counts.setdefault(rule, [0, b])[0] += 1
     broken = "; ".join(f"{b} ({k}/{len(mets)})" for k, b in counts.values()) or "-"

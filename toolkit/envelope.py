@@ -11,8 +11,9 @@ ECU in the loop (not told the road) and without control, and judged by :func:`ju
 * **Quiet in normal driving.** Where the uncontrolled car's lateral acceleration stays below
   :data:`NORMAL_USE` of the road's friction limit ``mu g`` and it does not slide, the law stays
   off: the added steer (command minus driver) stays within :data:`QUIET_STEER_DEG` and the yaw
-  moment within :data:`QUIET_YAW_MOMENT`. A gust is not normal driving: rejecting one is the
-  law's work (cancelling 1.5 kN of side force takes about 0.9 deg of steer).
+  moment within :data:`QUIET_YAW_MOMENT`. A disturbance is not normal driving: rejecting a gust or
+  the yaw moment of split friction is the law's work (cancelling 1.5 kN of side force takes about
+  0.9 deg of steer); the cases of :data:`DISTURBANCES` are judged by the other rules.
 * **Stabilises.** Where the uncontrolled car slides past :data:`SLIDE_DEG` (or is lost), the
   controlled car's peak sideslip stays below :data:`HELD_DEG`.
 * **Rejects a crosswind.** In a gust, the lateral deviation :data:`GUST_AFTER` s after the gust
@@ -23,7 +24,8 @@ steady turn; split friction in a straight-line acceleration and in a lane change
 turn; ISO 3888-2 obstacle avoidance and an 18 m slalom with a human driver (reaction delay and
 neuromuscular lag: :class:`plants.paths.HumanDriver`), entry speed stepped up; sine with dwell at
 60-120 km/h; a crosswind gust; smooth random steering below 4 m/s^2; a car loaded at the rear (the
-nominal file unchanged, the two-track only). Each case belongs to the ``design`` subset (the design
+nominal file unchanged, the two-track only). The step steers begin :data:`STEP_START` s into the run,
+after the ECU's filter has settled (a car reaches a test's speed before its manoeuvre). Each case belongs to the ``design`` subset (the design
 job's limit constraint) or the ``validation`` subset (reported, never tuned on): :data:`SUBSETS`.
 """
 
@@ -59,6 +61,12 @@ GUST_SHARE = 0.5
 """In a crosswind the controlled car's lateral deviation is at most this share of the car alone's ..."""
 GUST_AFTER = 2.0
 """... this long [s] after the gust starts."""
+STEP_START = 3.0
+"""[s] The step steers' start: the ECU starts with the run at the test speed, and its filter's
+kinematic sideslip path waits ``kinematic_settle`` (2 s) after the first GPS fix; a limit manoeuvre
+within those 2 s meets the linear model alone (docs/controller.md gives the figures)."""
+DISTURBANCES = ("crosswind", "split-mu-accel", "split-mu-lane-change")
+"""Case kinds whose cause is the road or the air, not the driver: the quiet rule does not apply."""
 OVERHANG = 0.8
 """[m] The body's reach ahead of the front axle and behind the rear one, for cone hits (evstab's
 figure for a passenger car: vehicle files give the wheelbase and width, not the length)."""
@@ -87,6 +95,11 @@ class Case:
         return f"{self.kind} {self.speed_kmh:.0f} km/h {mu}"
 
     @property
+    def disturbance(self) -> bool:
+        """Whether the case's cause is the road or the air (:data:`DISTURBANCES`)."""
+        return self.kind in DISTURBANCES
+
+    @property
     def mu_min(self) -> float:
         """The lowest friction anywhere in the run (the limit ``normal driving`` is measured against)."""
         return min(self.mu, self.mu_after if self.mu_after is not None else self.mu)
@@ -100,7 +113,7 @@ def cases(plant: str = "two-track") -> list[Case]:
     ``validation`` cases (other manoeuvres, speeds and frictions; reported only). The loaded car
     needs a plant whose truth evstab can change (not a multi-body car)."""
     out = [Case("step", kmh, mu, subset="design") for kmh, mu in ((80, 1.0), (80, 0.5))]
-    out += [Case("step", kmh, mu) for kmh in (60, 100, 130) for mu in (0.3, 0.6, 1.0)]
+    out += [Case("step", kmh, mu) for kmh in (60, 100, 130) for mu in (0.3, 0.5, 0.6, 1.0)]
     out += [Case("friction-drop", 80, 1.0, 0.3), Case("friction-drop", 80, 0.8, 0.5)]
     out += [Case("split-mu-accel", 30, 1.0, 0.2), Case("split-mu-lane-change", 80, 1.0, 0.3)]
     out += [Case("lift-off", 80, mu) for mu in (1.0, 0.5)]
@@ -144,7 +157,8 @@ def run_setup(case: Case, p: VehicleParams) -> tuple[Maneuver, Disturbances, Veh
     road = Disturbances(friction=Friction(mu=case.mu))
     truth = None
     if case.kind in ("step", "loaded"):
-        man = step_steer(v, steer_for_lateral_acceleration(p, v, 1.5 * case.mu * G), start=0.5, duration=4.0)
+        man = step_steer(v, steer_for_lateral_acceleration(p, v, 1.5 * case.mu * G), start=STEP_START,
+                         duration=STEP_START + 3.5)
         if case.kind == "loaded":
             truth = loaded(p)
     elif case.kind == "friction-drop":
@@ -244,9 +258,10 @@ def metrics(r, man: Maneuver, p: VehicleParams) -> Metrics:
                    float(np.max(np.abs(nz))), dev)
 
 
-def judge(ctl: Metrics, none: Metrics, mu: float) -> list[str]:
+def judge(ctl: Metrics, none: Metrics, mu: float, disturbance: bool = False) -> list[str]:
     """The envelope's rules broken by a controlled run ``ctl`` against the car alone ``none`` on a road
-    whose lowest friction is ``mu``; empty: the run passes."""
+    whose lowest friction is ``mu``; empty: the run passes. ``disturbance``: the case is one of
+    :data:`DISTURBANCES` (a gust is one whatever this says)."""
     broken = []
     if none.passed:
         if not ctl.passed:
@@ -256,7 +271,7 @@ def judge(ctl: Metrics, none: Metrics, mu: float) -> list[str]:
         if not ctl.peak_beta_deg <= bound:
             broken.append(f"no harm: peak sideslip {ctl.peak_beta_deg:.2f} deg > {bound:.2f} deg "
                           f"(car alone {none.peak_beta_deg:.2f} deg)")
-        if none.peak_ay < NORMAL_USE * mu * G and not np.isfinite(none.deviation_m):
+        if none.peak_ay < NORMAL_USE * mu * G and not disturbance and not np.isfinite(none.deviation_m):
             if not ctl.added_steer_deg <= QUIET_STEER_DEG:
                 broken.append(f"quiet: added steer {ctl.added_steer_deg:.2f} deg > {QUIET_STEER_DEG:g} deg in normal "
                               f"driving")

@@ -65,6 +65,16 @@ def test_quiet_means_a_quarter_degree_and_300_n_m(steer, nz, ok):
     assert (not ev.judge(m(1.0, 3.0, steer=steer, nz=nz), m(1.0, 3.0), 1.0)) == ok
 
 
+def test_a_disturbance_is_not_normal_driving():
+    # split friction (mu 0.2 on the right; 1 m/s^2 is below 0.6 mu g): the law rejecting the road's yaw moment breaks no quiet rule, but it
+    # must still do no harm (1.0 deg alone: 1.3 deg allowed)
+    assert ev.judge(m(1.0, 1.0, steer=0.6, nz=700.0), m(1.0, 1.0), 0.2, disturbance=True) == []
+    assert len(ev.judge(m(1.0, 1.0, steer=0.6, nz=700.0), m(1.0, 1.0), 0.2)) == 2
+    assert ev.judge(m(1.31, 1.0, steer=0.6), m(1.0, 1.0), 0.2, disturbance=True)[0].startswith("no harm")
+    kinds = {c.kind for c in ev.cases() if c.disturbance}
+    assert kinds == {"crosswind", "split-mu-accel", "split-mu-lane-change"}
+
+
 @pytest.mark.parametrize("ctl, ok", [(0.49, True), (0.51, False)])
 def test_crosswind_deviation_at_most_half(ctl, ok):
     # the gust is rejected with steer and yaw moment beyond the quiet rule's: no quiet rule here
