@@ -6,6 +6,8 @@ import csv
 import io
 from pathlib import Path
 
+import numpy as np
+
 from evstab.toolkit.logio import atomic_write
 
 
@@ -57,12 +59,25 @@ def save_figure(fig, path: Path) -> None:
     plt.close(fig)
 
 
+def format_row(row: dict) -> str:
+    """One console line for a study's result row: ``name value`` pairs, numbers to 4 significant digits."""
+    def fmt(v):
+        if isinstance(v, (bool, np.bool_)):
+            return "yes" if v else "no"
+        if isinstance(v, (int, np.integer)):
+            return str(int(v))
+        if isinstance(v, (float, np.floating)):
+            return f"{float(v):.4g}"
+        return str(v)
+    return "; ".join(f"{k} {fmt(v)}" for k, v in row.items())
+
+
 def cli(main) -> None:
-    """``python -m evstab.studies.NAME OUT_DIR [--quick]``: run a study and print its rows."""
+    """``python -m evstab.studies.NAME OUT_DIR [--quick]``: run a study and print its rows, one line each."""
     import sys
     args = [a for a in sys.argv[1:] if a != "--quick"]
     for row in main(args[0] if args else "out/studies", quick="--quick" in sys.argv):
-        print(row)
+        print(format_row(row) if isinstance(row, dict) else row)
 
 
 def seed_003_design(p):

@@ -229,8 +229,25 @@ def _tune_noise(args, d, log) -> int:
     for k, a, b in zip(fit.parameters, fit.start, fit.values):
         note = " (at its bound: the log does not pin it)" if k in fit.at_bound else ""
         print(f"  {k:18s} {a:11.4g} -> {b:11.4g}{note}")
+    warning = tune_warning(fit)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     print(f"-> {args.out}")
     return 0
+
+
+def tune_warning(fit) -> str | None:
+    """A warning when the fitted noise makes the course innovations less consistent than the noise it
+    started from (mean NIS further from 1, or out of its 95 % interval where it was inside): the
+    likelihood then rewards the log's particulars (a short log pins the parameters poorly)."""
+    lo, hi = fit.nis_interval
+    inside_before, inside_after = lo <= fit.nis_start <= hi, lo <= fit.nis <= hi
+    if abs(fit.nis - 1.0) <= abs(fit.nis_start - 1.0) and (inside_after or not inside_before):
+        return None
+    return (f"the fitted noise makes the course innovations less consistent than the noise it started from "
+            f"(mean NIS {fit.nis_start:.3f} -> {fit.nis:.3f}, 95 % interval [{lo:.3f}, {hi:.3f}]) over "
+            f"{fit.course_fixes} course fixes: check the fit on another log before using it, or keep the "
+            f"method's noise")
 
 
 def _estimate_designed(args) -> int:

@@ -61,3 +61,13 @@ def test_control_fig9(tmp_path):
     # 0.60 (full run), sideslip 0.32 vs 0.54 deg (full run)
     assert rows["two-dof"]["yaw_rate_rms_err_deg_s"] < 0.7 * rows["none"]["yaw_rate_rms_err_deg_s"]
     assert rows["two-dof"]["beta_rms_err_deg"] < rows["none"]["beta_rms_err_deg"]
+
+
+def test_a_study_prints_a_row_as_one_readable_line():
+    # not a Python dict: name and value pairs, numbers to 4 significant digits, flags as yes / no
+    import numpy as np
+
+    from evstab.studies._common import format_row
+    row = {"case": "step 80 km/h mu 1", "seed": np.int64(3), "beta_deg": 1.73612, "nis": float("nan"),
+           "pass": np.bool_(True), "cones": 0}
+    assert format_row(row) == "case step 80 km/h mu 1; seed 3; beta_deg 1.736; nis nan; pass yes; cones 0"

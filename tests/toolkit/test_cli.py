@@ -122,3 +122,21 @@ def test_simulate_with_the_stability_loop(tmp_path):
     with pytest.raises(SystemExit):
         main(["simulate", "--vehicle", "micro-ev", "--maneuver", "step-steer", "--speed", "25",
               "--controller", "magic", "--out", str(out)])
+
+
+@pytest.mark.parametrize("start, fitted, warned", [
+    (1.04, 1.32, True),    # the 10 s log: further from 1 (and out of [0.7, 1.3])
+    (1.04, 1.02, False),   # closer to 1
+    (0.60, 0.69, False),   # closer to 1, still outside: no worse than it started
+    (1.10, 0.92, False),   # as far from 1 on the other side is closer (0.08 < 0.10)
+    (1.25, 1.31, True),    # inside -> outside
+])
+def test_tune_warns_when_the_fit_is_less_consistent(start, fitted, warned):
+    from types import SimpleNamespace
+
+    from evstab.toolkit.cli import tune_warning
+    fit = SimpleNamespace(nis_start=start, nis=fitted, nis_interval=(0.7, 1.3), course_fixes=49)
+    msg = tune_warning(fit)
+    assert bool(msg) == warned
+    if warned:
+        assert f"{start:.3f} -> {fitted:.3f}" in msg and "49 course fixes" in msg

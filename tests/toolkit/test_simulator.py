@@ -188,3 +188,23 @@ def test_reading_selected_columns(tmp_path, compact):
     from evstab.toolkit.logio import LogFormatError
     with pytest.raises(LogFormatError, match="row 6, column 'wheel_speed_fl'"):
         read_log_csv(bad)
+
+
+def test_the_run_figure_shows_the_ecu_with_a_controller(tmp_path):
+    # with a controller: the driver's steer beside the ECU's command, the ECU's estimates and references,
+    # its yaw moment and authority; without one, the six panels of the car alone
+    import numpy as np
+
+    from evstab.plants import load_vehicle
+    from evstab.plants.maneuvers import step_steer
+    from evstab.toolkit.plotting import plot_run
+    from evstab.toolkit.simulator import simulate
+    p = load_vehicle("compact-ev")
+    man = step_steer(60 / 3.6, np.radians(2.0), duration=2.0)
+    panels = plot_run(simulate(p, "two-track", man, controller="two-dof"), tmp_path / "ctl.png", man)
+    assert (tmp_path / "ctl.png").stat().st_size > 10000 and len(panels) == 8
+    assert panels["front road-wheel angle [deg]"] == ["driver", "ECU command"]
+    assert {"ECU estimate", "ECU reference"} <= set(panels["yaw rate [deg/s]"]) & set(panels["sideslip [deg]"])
+    assert panels["yaw moment [N m]"] == ["ECU command", "applied (actuators)"]
+    alone = plot_run(simulate(p, "two-track", man), tmp_path / "alone.png", man)
+    assert len(alone) == 6 and alone["front road-wheel angle [deg]"] == ["steer command"]

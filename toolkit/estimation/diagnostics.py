@@ -104,6 +104,10 @@ WARMUP = 5.0
 covariance is a prior for a cold start, not its steady state (the noise fit skips the same)."""
 
 
+MIN_FIXES = 15
+"""Fewest used fixes with a residual for :func:`course_report`'s whiteness and NIS tests."""
+
+
 def used_residuals(est_columns: dict, t=None, warmup: float = WARMUP) -> np.ndarray:
     """The normalised course residuals of the fixes a run used, NaN elsewhere and in the first ``warmup``
     seconds (``t``: the run's times; None: no warm-up)."""
@@ -119,8 +123,16 @@ def course_report(est_columns: dict, alpha: float = 0.05, t=None, warmup: float 
     """One line on the course residuals of a run (the fixes the filter used after ``warmup`` seconds of
     ``t``), for the console."""
     r = used_residuals(est_columns, t, warmup)
-    if np.sum(np.isfinite(r)) < 15:
-        return "course residuals: fewer than 15 used fixes, no whiteness or NIS test"
+    n = int(np.sum(np.isfinite(r)))
+    if n < MIN_FIXES:
+        total = int(np.sum(np.asarray(est_columns.get("gps_used", []), float) > 0.5))
+        resid = np.asarray(est_columns.get("course_resid", []), float)
+        if not np.any(np.isfinite(resid)):
+            return (f"course residuals: the method reports none for its {total} used fixes, no whiteness or NIS "
+                    f"test")
+        after = "" if t is None else f" after the first {warmup:g} s"
+        return (f"course residuals: {n} of the {total} used fixes have one{after}, fewer than {MIN_FIXES}: no "
+                f"whiteness or NIS test")
     w = whiteness(r, alpha=alpha)
     c = nis_consistency(r[np.isfinite(r)] ** 2, alpha)
     after = "" if t is None else f" after the first {warmup:g} s"
