@@ -13,7 +13,7 @@ Writes ``envelope.csv`` (one row per car, case and seed), ``envelope_table.md`` 
 the car alone, the controlled car's median and worst seed, the rules broken) and
 ``envelope_summary.md`` (per car and subset: cases, cases with a rule broken).
 
-Run: ``python -m evstab.studies.control_envelope OUT_DIR [--quick]`` (about 8 minutes on one core;
+Run: ``python -m evstab.studies.control_envelope OUT_DIR [--quick]`` (about 5 minutes on one core;
 quick, for the test suite: compact-ev, the six cases of :data:`QUICK`, two seeds).
 """
 
