@@ -19,7 +19,6 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit import limits as lm, sweep as sw
-from evstab.toolkit.analysis import SPEEDS_KMH
 from evstab.toolkit.selection import TUNING_STARTS, regression_caps, tuning_ids
 from evstab.toolkit.tuning import MarginConstraint, RolloutCost, tune
 
@@ -56,7 +55,7 @@ def main(out, quick: bool = False) -> list[dict]:
     displacement = lm.tightest(lm.displacement_runs(cfg, none, a_cache, also=paper), paper)
     ids = tuning_ids(cases, rows_paper, quick)
     caps = regression_caps(ids, rows_paper)
-    margins = MarginConstraint(tuple(SPEEDS_KMH))
+    margins = MarginConstraint.on_analysis_grid()
     rows = []
     for seed in (None,) + SEEDS:
         with _Perturbed(0.0 if seed is None else PERTURBATION, seed or 0):

@@ -84,10 +84,9 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
 
     Returns ``(point, its sweep rows, the rounds' records, the tuning set as it ended)``.
     """
-    from .analysis import SPEEDS_KMH
     from .tuning import BOUNDS, MarginConstraint, tune
     paper = cfg.paper
-    margins = MarginConstraint(tuple(SPEEDS_KMH))
+    margins = MarginConstraint.on_analysis_grid()
     bounds = BOUNDS if bounds is None else bounds
     max_iter, max_rounds = (12, 2) if quick else (25, 3)
     paper_by = {r["case_id"]: r for r in rows_paper}

@@ -383,6 +383,12 @@ class MarginConstraint:
 
     speeds_kmh: tuple
 
+    @classmethod
+    def on_analysis_grid(cls) -> "MarginConstraint":
+        """The constraint at every speed of the design job's analysis (:data:`toolkit.analysis.SPEEDS_KMH`)."""
+        from .analysis import SPEEDS_KMH
+        return cls(tuple(SPEEDS_KMH))
+
 
 def margin_values(cfg: SweepConfig, phi: np.ndarray, mc: MarginConstraint) -> np.ndarray:
     """``[disk margin, -sensitivity peak]`` of the design point ``phi`` on the design's own model: the
