@@ -52,6 +52,7 @@ from .compiled import numeric_fields, param_vector, rk4_step, rk4_substeps, symb
 from . import lanes as lanes_mod
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
+from .firmware import guard as guard_mod
 from .firmware.ecu import INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign
 from .loop_ecu import CONTROLLERS, LoopEcu, LoopError, loop_ecu  # noqa: F401  (the loop's public names)
 
@@ -191,6 +192,7 @@ class LoopSpec:
             names += [f"controller.{s}" for s in (YAW_PI_STATE if self.ecu.kind == "yaw-pi" else ctl_mod.STATE)]
             if self.ecu.kind != "yaw-pi":
                 names += [f"supervisor.{s}" for s in sup_mod.STATE]
+            names += [f"guard.{s}" for s in guard_mod.STATE]
         names += [f"actuator.{k}" for k in ACT_STATE] + [f"applied.{k}" for k in APPLIED]
         names += [f"flag.{k}" for k in FLAGS]
         names += [f"{j}.{k}" for j in GPS_SLOTS for k in SLOT]

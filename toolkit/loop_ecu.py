@@ -22,8 +22,9 @@ from evstab.plants.signals import Layout, Signal
 from .estimation import design_filter
 from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
+from .firmware import guard as guard_mod
 from .firmware.ecu import (CONTROL_STATE, FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign,
-                           ecu_control, ecu_estimate, rear_torques)
+                           ecu_control, ecu_estimate, rear_torques, restart, with_authority)
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 
@@ -65,12 +66,12 @@ class LoopEcu:
 
     @property
     def sizes(self) -> tuple[int, int]:
-        """(filter state, controller state) sizes."""
+        """(filter state, controller state) sizes; the controller's part ends with the input guard's state."""
         if self.kind == "driver":
             return 0, 0
         ne = self.ecu.layout.index("controller") if self.has_filter else 0
         nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE) + len(sup_mod.STATE)
-        return ne, nc
+        return ne, nc + guard_mod.STATE.size
 
     @property
     def n_state(self) -> int:
@@ -96,23 +97,39 @@ class LoopEcu:
         if ne:
             z[lay.slot("filter")] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
         if self.kind not in ("driver", "yaw-pi"):
-            z[lay.slot("control")] = CONTROL_STATE.pack(controller=ctl_mod.STATE.zeros(),
-                                                           supervisor=np.asarray(sup_mod.initial_state(self.ecu.controller)))
+            z[lay.slot("control")] = np.concatenate([CONTROL_STATE.pack(controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(
+                sup_mod.initial_state(self.ecu.controller))), guard_mod.initial_state()])
+        elif self.kind == "yaw-pi":
+            z[lay.slot("control")][-guard_mod.STATE.size:] = guard_mod.initial_state()
         return z
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
         """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
         ``cal`` the calibration values (numbers or symbols); ``truth`` is read by ``two-dof-true`` only."""
         d = self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
+        # the input guard first (toolkit.firmware.guard), as in the ECU step
+        ne, nc = self.sizes
+        ng = guard_mod.STATE.size
+        z_all = z
+        zg, raw = z_all[ne + nc - ng:ne + nc], ECU_INPUTS.as_dict(u)
+        zg, clean = guard_mod.guard(d.guard, zg, raw, d.filter.dt_nominal, d.wheel_radius, o)
+        u = ECU_INPUTS.pack(clean, o)
         g = ECU_INPUTS.as_dict(u)
         zero = 0.0 * g["dt"]
+        start = self.initial_state()
+        z_f = z_all[self.layout.slot("filter")] if ne else None
+        z_c, z_c0 = z_all[ne:ne + nc - ng], start[ne:ne + nc - ng]
+        if ne:
+            z_f, z_c, broken = restart(z_f, z_c, zg, start[:ne], z_c0, o)
+        else:
+            _, z_c, broken = restart(zero, z_c, zg, 0.0, z_c0, o)
         if self.has_filter:
-            z_est_n, est = ecu_estimate(d, z[self.layout.slot("filter")], u, o)
+            z_est_n, est = ecu_estimate(d, z_f, u, o)
         else:
             z_est_n = None
             est = {"beta": truth["beta"], "yaw_rate": truth["yaw_rate"], "yaw": truth["yaw"], "d1": zero,
                    "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero}
-        z_ctl = z[self.layout.slot("control")]
+        z_ctl = z_c
         if self.kind == "yaw-pi":
             sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
                                        yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=g["mu"],
@@ -123,7 +140,8 @@ class LoopEcu:
             y = ECU_OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias",
                                                              "beta_std", "gps_used")},
                                  steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
-                                 beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, mu_est=g["mu"])
+                                 beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, mu_est=g["mu"],
+                                 fault_word=zero, bad_samples=zero)
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
@@ -137,8 +155,9 @@ class LoopEcu:
                 law["xi_beta"] = law["xi_yaw_rate"] = zero
                 z_ctl_n = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law, o),
                                                 supervisor=parts["supervisor"])
+        z_ctl_n = o.concat([z_ctl_n, zg])
         z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
-        return z_next, y
+        return z_next, with_authority(y, u, zg, broken, o)
 
 
 def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: str | FilterDesign = "dakf",

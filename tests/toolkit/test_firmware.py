@@ -402,9 +402,13 @@ def test_ecu_signs_follow_iso_8855(ecu):
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
     assert dict(zip(OUTPUTS, y))["yaw_rate"] > 0
     # the driver steers left and the car does not turn (understeer): the law acts, turning left
-    u[g["steer_cmd_driver"]], u[g["yaw_rate"]] = np.radians(1.0), 0.0
-    for _ in range(300):
+    # (the steer applied over 10 ms: an instant 1 deg step would be 17 rad/s, which the input guard takes for
+    # a fault; toolkit.firmware.guard)
+    u[g["yaw_rate"]] = 0.0
+    for k in range(300):
+        u[g["steer_cmd_driver"]] = np.radians(1.0) * min((k + 1) / 10, 1.0)
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
+    assert dict(zip(OUTPUTS, y))["fault_word"] == 0
     out = dict(zip(OUTPUTS, y))
     assert out["yaw_rate_ref"] > 0 and out["active"] == 1.0
     nz = out["yaw_moment_cmd"]

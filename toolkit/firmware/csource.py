@@ -22,7 +22,7 @@ from evstab.controllers.schedule import ROWS
 
 from ..compiled import shared
 from .cgen import Precision, c_array, emit_body
-from .ecu import INPUTS, OUTPUTS, EcuDesign, traced_steps
+from .ecu import INPUTS, OUTPUTS, EcuDesign, traced_guard, traced_steps
 
 PREFIX = "evstab"
 
@@ -203,6 +203,23 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
         return f"in->{name}"
 
     reads = [lambda k: f"z[{k}]", read_input, lambda k: f"sch[{k}]", lambda k: cal_syms[k]]
+    # the input guard: writes its part of the state and the inputs the step reads (integers through locals)
+    gfn = shared(traced_guard(d))
+    target, declare, finish = state_targets(gfn, "z", "evstab_real")
+
+    def clean_target(k):
+        name = in_names[k]
+        return f"{name}_c" if _kind(name) in ("int", "flag") else f"clean->{name}"
+    ints = [n for n in in_names if _kind(n) in ("int", "flag")]
+    body = emit_body(gfn, reads[:2], [target, clean_target], p)
+    parts.append(f"static void {PREFIX}_ecu_guard(evstab_real *z, const evstab_input_t *in, evstab_input_t *clean)\n{{")
+    parts.append(f"    evstab_real {', '.join(n + '_c' for n in ints)};")
+    parts.extend("    " + line for line in declare)
+    parts.extend(body)
+    parts.extend("    " + line for line in finish)
+    parts.extend(f"    clean->{n} = {n}_c != {p.literal(0.0)} ? 1 : 0;" if _kind(n) == "flag" else
+                 f"    clean->{n} = (int){n}_c;" for n in ints)
+    parts.append("}\n")
     moving = bool(d.filter.standstill_update)
     for fn in traced_steps(d, moving=moving):
         fn = shared(fn)  # each repeated subexpression once: the same values (see toolkit.compiled.shared)
@@ -224,10 +241,13 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
     s->seg[0] = s->seg[1] = 0;
 }}
 
-void evstab_step(evstab_state_t *s, const evstab_input_t *in, evstab_output_t *out)
+void evstab_step(evstab_state_t *s, const evstab_input_t *raw, evstab_output_t *out)
 {{
     evstab_real sch[{nf + nc}]; /* the filter's transition rows, then the schedule's */
     evstab_real t;
+    evstab_input_t clean;
+    const evstab_input_t *in = &clean;
+    {PREFIX}_ecu_guard(s->z, raw, &clean); /* every input checked; what the step reads from here on */
     const evstab_real vf = {p.fn('fmax')}(in->speed, EVSTAB_FILTER_MIN_SPEED);
     const evstab_real vc = {p.fn('fmax')}(in->speed, EVSTAB_CONTROL_MIN_SPEED);
     int lo = {PREFIX}_segment(vf, &s->seg[0], &t);

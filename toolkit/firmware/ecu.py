@@ -39,6 +39,8 @@ from evstab.plants.model import torque_difference
 from evstab.plants.signals import Layout, Signal
 
 from ..compiled import with_fields
+from . import guard as guard_mod
+from .guard import GuardSettings
 from ..estimation import kalman
 from ..estimation.spec import LOOP_METHODS, FilterDesign
 from ..estimation.transition import Transition, build_transition
@@ -79,6 +81,9 @@ OUTPUTS = Layout("ECU outputs", [
     Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
     Signal("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
     Signal("mu_est", "-", "friction estimate the reference is limited with"),
+    Signal("fault_word", "-", "inputs in fault, one bit each (toolkit.firmware.guard.FAULT_BITS; bit 11: the ECU "
+           "state was not finite and restarted this period); 0 when all is well"),
+    Signal("bad_samples", "-", "input samples the guard has replaced since start (saturates at 1e7)"),
 ])
 FIRMWARE_METHODS = LOOP_METHODS
 
@@ -159,6 +164,8 @@ class EcuDesign:
     """Rear track [m]."""
     wheel_radius: float
     """Wheel radius [m]."""
+    guard: GuardSettings = GuardSettings()
+    """The input guard's timing (:mod:`toolkit.firmware.guard`)."""
 
     def __post_init__(self):
         if self.filter.method not in FIRMWARE_METHODS:
@@ -192,7 +199,8 @@ class EcuDesign:
     @property
     def layout(self) -> Layout:
         """The flat ECU state: the filter's parts (see :func:`kalman.layout`), then the control law's
-        (:data:`controllers.two_dof.STATE`) and the supervisor's (:data:`controllers.supervisor.STATE`)."""
+        (:data:`controllers.two_dof.STATE`), the supervisor's (:data:`controllers.supervisor.STATE`) and the
+        input guard's (:data:`toolkit.firmware.guard.STATE`)."""
         return state_layout(self.filter)
 
     @property
@@ -202,7 +210,8 @@ class EcuDesign:
     def initial_state(self) -> np.ndarray:
         """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
         return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), CONTROL_STATE.pack(
-            controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(sup_mod.initial_state(self.controller)))])
+            controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(sup_mod.initial_state(self.controller))),
+            guard_mod.initial_state()])
 
     @property
     def min_speeds(self) -> tuple[float, float]:
@@ -299,7 +308,8 @@ def state_layout(f: FilterDesign) -> Layout:
 
 @lru_cache(maxsize=64)
 def _state_layout(filter_signals: tuple) -> Layout:
-    return Layout("ECU state", [*filter_signals, *CONTROL_STATE.signals])
+    return Layout("ECU state", [*filter_signals, *CONTROL_STATE.signals,
+                                Signal("guard", "-", "the input guard's state", guard_mod.STATE.size)])
 
 
 def filter_part(lay: Layout) -> slice:
@@ -367,7 +377,8 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     out = OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std",
                                                    "gps_used")},
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
-                       beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"], mu_est=mu_est)
+                       beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"], mu_est=mu_est,
+                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
 
@@ -385,25 +396,90 @@ def rear_torques(d: EcuDesign, yaw_moment, o=NUMPY):
     return -diff, diff
 
 
-def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, moving: bool = False):
-    """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`.
+def ecu_guard(d: EcuDesign, z, u, o=NUMPY):
+    """The input guard (:mod:`toolkit.firmware.guard`): ``(z, u) -> (guard part of z_next, clean u)``."""
+    zg_n, clean = guard_mod.guard(d.guard, z[d.layout.slot("guard")], INPUTS.as_dict(u), d.filter.dt_nominal,
+                                  d.wheel_radius, o)
+    return zg_n, INPUTS.pack(clean, o)
 
-    ``sched``: the values of :meth:`EcuDesign.schedule_inputs` for this step (numbers or
-    symbols); None reads the tables here. ``with_course=False`` leaves out the course update
-    (exact on a step without a fix), ``moving=True`` the standstill update (exact at a speed of
-    at least the filter's ``standstill_speed``; see :func:`kalman.step`).
+
+def _total(v, o):
+    if o is CASADI:
+        import casadi as ca
+        return ca.sum1(v)
+    return np.sum(v)
+
+
+def restart(z_est, z_ctl, zg, start_est, start_ctl, o=NUMPY):
+    """The filter's and the controller's state as the step takes them: their initial state (``start_est``,
+    ``start_ctl``) on the period the guard restarts them, or where either is not finite (a NaN or an infinity
+    anywhere makes the sum non-finite); returns ``(z_est, z_ctl, 1 where the state was not finite)``."""
+    broken = 1.0 - (o.fabs(_total(z_est, o) + _total(z_ctl, o)) < 1e30)
+    reset = o.fmax(guard_mod.STATE.unpack(zg).restart, broken) > 0.5
+    return o.if_else(reset, start_est, z_est), o.if_else(reset, start_ctl, z_ctl), broken
+
+
+def with_authority(y, u, zg, broken, o=NUMPY):
+    """The outputs ``y`` with the guard's authority ``k`` applied (the steer command ``k`` of the law's
+    and ``1 - k`` of the driver's, the yaw moment and the wheel torques ``k`` times the law's: exact at
+    ``k = 1``) and its fault word and count."""
+    gs = guard_mod.STATE.unpack(zg)
+    k = gs.authority
+    ys = OUTPUTS.as_dict(y)
+    ys["steer_cmd"] = ys["steer_cmd"] * k + INPUTS.as_dict(u)["steer_cmd_driver"] * (1.0 - k)
+    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active"):
+        ys[name] = ys[name] * k
+    ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])
+    ys["bad_samples"] = gs.bad_samples
+    return OUTPUTS.pack(ys, o)
+
+
+def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, moving: bool = False):
+    """``(z, u) -> (z_next, y)``, ``u`` per :data:`INPUTS`, ``y`` per :data:`OUTPUTS`: the input guard
+    (:func:`ecu_guard`), then :func:`ecu_core` on the inputs it passes.
+
+    ``sched``: the values of :meth:`EcuDesign.schedule_inputs` at the guarded speed (numbers or symbols;
+    callers that read the tables outside the step run :func:`ecu_guard` and :func:`ecu_core` in turn, as
+    the exported C does); None reads the tables here. ``with_course=False`` leaves out the course update
+    (exact on a step whose guarded ``gps_valid`` is 0), ``moving=True`` the standstill update (exact at a
+    guarded speed of at least the filter's ``standstill_speed``; see :func:`kalman.step`).
     """
+    lay = d.layout
+    zg_n, u_c = ecu_guard(d, z, u, o)
+    z = o.concat([z[0:lay.index("guard")], zg_n])
+    return ecu_core(d, z, u_c, sched, o, with_course, moving)
+
+
+def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, moving: bool = False):
+    """The step after the guard: ``(z, clean u) -> (z_next, y)``; ``z``'s guard part is the guard's new state,
+    which it passes through."""
     d = with_schedule_rows(d, sched)
     lay = d.layout
-    z_est_n, est = ecu_estimate(d, z[filter_part(lay)], u, o, with_course, moving)
-    z_ctl_n, out = ecu_control(d, z[lay.span("controller", "supervisor")], u, est, o)
-    return o.concat([z_est_n, z_ctl_n]), out
+    z0 = d.initial_state()
+    ctl = lay.span("controller", "supervisor")
+    zg = z[lay.slot("guard")]
+    z_est, z_ctl, broken = restart(z[filter_part(lay)], z[ctl], zg, z0[filter_part(lay)], z0[ctl], o)
+    z_est_n, est = ecu_estimate(d, z_est, u, o, with_course, moving)
+    z_ctl_n, out = ecu_control(d, z_ctl, u, est, o)
+    return o.concat([z_est_n, z_ctl_n, zg]), with_authority(out, u, zg, broken, o)
+
+
+def traced_guard(d: EcuDesign):
+    """casadi SX function ``ecu_guard``: ``(z, u) -> (z_next, u_clean)``, the input guard (:func:`ecu_guard`); of
+    ``z_next`` only the guard's part differs from ``z``."""
+    import casadi as ca
+    lay = d.layout
+    z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
+    zg_n, u_c = ecu_guard(d, z, u, CASADI)
+    zn = ca.vertcat(z[0:lay.index("guard")], zg_n)
+    return ca.Function("ecu_guard", [z, u], [zn, u_c], ["z", "u"], ["z_next", "u_clean"])
 
 
 def traced_steps(d: EcuDesign, moving: bool = False):
-    """casadi SX functions ``(z, u, sched, cal) -> (z_next, y)`` without and with the course update;
-    with ``moving`` a third, without the course and the standstill update (``ecu_nofix_moving``: the
-    step of a period without a fix at a speed of at least the filter's ``standstill_speed``)."""
+    """casadi SX functions ``(z, u, sched, cal) -> (z_next, y)`` of :func:`ecu_core` (the step after the input
+    guard, ``u`` the inputs it passed) without and with the course update; with ``moving`` a third, without
+    the course and the standstill update (``ecu_nofix_moving``: the step of a period without a fix at a
+    speed of at least the filter's ``standstill_speed``)."""
     import casadi as ca
     out = []
     variants = [("ecu_nofix", False, False), ("ecu_fix", True, False)]
@@ -413,6 +489,6 @@ def traced_steps(d: EcuDesign, moving: bool = False):
         z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
         s, cal = ca.SX.sym("sched", sum(d.n_schedule_inputs)), ca.SX.sym("cal", len(d.calibration()))
         bound = d.bind([cal[i] for i in range(cal.shape[0])])
-        zn, y = ecu_step(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course, moving=mv)
+        zn, y = ecu_core(bound, z, u, [s[i] for i in range(s.shape[0])], CASADI, with_course=with_course, moving=mv)
         out.append(ca.Function(name, [z, u, s, cal], [zn, y], ["z", "u", "sched", "cal"], ["z_next", "y"]))
     return tuple(out)

@@ -26,7 +26,8 @@ import numpy as np
 from evstab.plants.backend import NUMPY
 
 from ..compiled import cache_key, load_chunk_library, run_chunks
-from .ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step, traced_steps
+from . import guard as guard_mod
+from .ecu import INPUTS, OUTPUTS, EcuDesign, ecu_core, ecu_guard, traced_guard, traced_steps
 from ..logio import LogFormatError
 
 CHUNK = 2000
@@ -88,26 +89,53 @@ class EcuProgram:
         self.design = d
         self.cal = np.array([c.value for c in d.calibration()])
         self.backend = "numpy" if backend == "numpy" else "vm"
-        self._chunk = None
+        self._chunk = self._guard_chunk = None
+        self._c = self._gc = None
         if backend in ("auto", "c"):
             self._c = load_chunk_library(cache_key("ecu", d, CHUNK), lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")
-            if self._c is not None:
+            self._gc = load_chunk_library(cache_key("ecu_guard", d, CHUNK), lambda: self.guard_chunk_fn, "guard_chunk",
+                                          required=backend == "c")
+            if self._c is not None and self._gc is not None:
                 self.backend = "c"
+
+    @property
+    def guard_chunk_fn(self) -> ca.Function:
+        """``(zg0, U) -> (zg_end, [U_clean; zg])`` over :data:`CHUNK` samples: the input guard alone (its state
+        does not depend on the rest of the step), run first so that the tables are read at the guarded speed."""
+        if self._guard_chunk is None:
+            d = self.design
+            ng = guard_mod.STATE.size
+            g = traced_guard(d)
+            lay = d.layout
+            zg, u = ca.MX.sym("zg", ng), ca.MX.sym("u", INPUTS.size)
+            z_full = ca.vertcat(ca.MX.zeros(lay.index("guard")), zg)
+            zn, uc = g(z_full, u)
+            zg_n = zn[lay.index("guard"):]
+            step = ca.Function("guard_step", [zg, u], [zg_n, ca.vertcat(uc, zg_n)])
+            acc = step.mapaccum("guard_acc", CHUNK)
+            z0, U = ca.MX.sym("z0", ng), ca.MX.sym("U", INPUTS.size, CHUNK)
+            Z, Y = acc(z0, U)
+            self._guard_chunk = ca.Function("guard_chunk", [z0, U], [Z[:, -1], Y])
+        return self._guard_chunk
 
     @property
     def chunk_fn(self) -> ca.Function:
         """``(z0, U, S, cal) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use)."""
         if self._chunk is None:
+            # the step after the guard: its inputs are the guarded ones, its guard state the guard's (per sample)
             nofix, fix = traced_steps(self.design)
             switch = ca.Function.conditional("ecu_switch", [nofix], fix)
             nz, nu, ns, nc = (nofix.size1_in(i) for i in range(4))
-            z, u, s, c = ca.MX.sym("z", nz), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
-            zn, y = switch(ca.if_else(u[INPUTS.index("gps_valid")] > 0.5, 1, 0), z, u, s, c)
-            step = ca.Function("ecu_step", [z, u, s, c], [zn, y])
+            ng = guard_mod.STATE.size
+            z, u, s, c = ca.MX.sym("z", nz - ng), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
+            zg = ca.MX.sym("zg", ng)
+            zn, y = switch(ca.if_else(u[INPUTS.index("gps_valid")] > 0.5, 1, 0), ca.vertcat(z, zg), u, s, c)
+            step = ca.Function("ecu_step", [z, u, s, zg, c], [zn[:nz - ng], y])
             acc = step.mapaccum("ecu_acc", CHUNK)
-            z0, U, S, C = ca.MX.sym("z0", nz), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK), ca.MX.sym("c", nc)
-            Z, Y = acc(z0, U, S, ca.repmat(C, 1, CHUNK))
-            self._chunk = ca.Function("ecu_chunk", [z0, U, S, C], [Z[:, -1], Y])
+            z0, U, S = ca.MX.sym("z0", nz - ng), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK)
+            ZG, C = ca.MX.sym("ZG", ng, CHUNK), ca.MX.sym("c", nc)
+            Z, Y = acc(z0, U, S, ZG, ca.repmat(C, 1, CHUNK))
+            self._chunk = ca.Function("ecu_chunk", [z0, U, S, ZG, C], [Z[:, -1], Y])
         return self._chunk
 
     def run(self, U: np.ndarray, z0: np.ndarray | None = None) -> np.ndarray:
@@ -115,15 +143,22 @@ class EcuProgram:
         d = self.design
         n, ny = U.shape[0], OUTPUTS.size
         z = d.initial_state() if z0 is None else np.array(z0, float)
-        S = d.schedule_inputs(U[:, INPUTS.index("speed")])
+        ifix, ispeed = INPUTS.index("gps_valid"), INPUTS.index("speed")
+        ig = d.layout.index("guard")
         if self.backend == "numpy":
             Y = np.empty((n, ny))
-            ifix = INPUTS.index("gps_valid")
             for k in range(n):
-                z, Y[k] = ecu_step(d, z, U[k], S[k], NUMPY, with_course=bool(U[k, ifix] > 0.5))
+                zg, uc = ecu_guard(d, z, U[k], NUMPY)
+                z = np.concatenate([z[:ig], zg])
+                z, Y[k] = ecu_core(d, z, uc, d.schedule_inputs(uc[ispeed]), NUMPY, with_course=bool(uc[ifix] > 0.5))
             return Y
-        return run_chunks(z, [U, S], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
-                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=INPUTS.index("gps_valid"))
+        # the guard first (its state depends on the inputs alone), then the tables at the guarded speed
+        G = run_chunks(z[ig:], [U], INPUTS.size + guard_mod.STATE.size, CHUNK,
+                       c_fn=self._gc if self.backend == "c" else None, casadi_fn=self.guard_chunk_fn)
+        Uc, ZG = np.ascontiguousarray(G[:, :INPUTS.size]), np.ascontiguousarray(G[:, INPUTS.size:])
+        S = d.schedule_inputs(Uc[:, ispeed])
+        return run_chunks(z[:ig], [Uc, S, ZG], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
+                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=ifix)
 
 
 @lru_cache(maxsize=16)

@@ -1,0 +1,151 @@
+"""The ECU's input guard (toolkit.firmware.guard): bad samples replaced and counted, persistent faults named
+in the fault word, the law's authority ramped out and back, the filter restarted; on clean inputs nothing
+changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evstab.controllers.two_dof import TwoDofDesign
+from evstab.plants import load_vehicle
+from evstab.plants.backend import NUMPY
+from evstab.toolkit.estimation import design_filter
+from evstab.toolkit.firmware import guard as gm
+from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
+
+DT = 1e-3
+S = gm.GuardSettings()
+
+
+def _inputs(speed=16.7, wheel_radius=0.3):
+    u = {k: 0.0 for k in INPUTS}
+    u.update(dt=DT, speed=speed, gps_hdop=1.0, gps_sats=10.0, mu=1.0, wheel_speed_rl=speed / wheel_radius,
+             wheel_speed_rr=speed / wheel_radius)
+    return u
+
+
+def _run(samples, z=None):
+    """The guard over a list of input dicts; returns the states and the clean inputs."""
+    z = gm.initial_state() if z is None else z
+    zs, cs = [], []
+    for u in samples:
+        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY)
+        zs.append(gm.STATE.as_dict(z))
+        cs.append(c)
+    return zs, cs
+
+
+def test_the_rate_check_at_its_boundary():
+    """A change of rate * dt + step from the last good value passes; a little more is replaced by the last
+    good value (yaw rate: 30 rad/s^2 * 1 ms + 0.1 rad/s = 0.13 rad/s)."""
+    edge = 30.0 * DT + 0.1
+    for delta, passes in ((edge - 1e-9, True), (edge + 1e-9, False)):
+        a, b = _inputs(), _inputs()
+        b["yaw_rate"] = delta
+        zs, cs = _run([a, b])
+        assert cs[1]["yaw_rate"] == (delta if passes else 0.0)
+        assert zs[1]["bad_samples"] == (0.0 if passes else 1.0)
+
+
+@pytest.mark.parametrize("name", [c.name for c in gm.CHECKS])
+def test_one_bad_sample_is_replaced_and_counted_not_a_fault(name):
+    good = [_inputs() for _ in range(5)]
+    for k, u in enumerate(good):
+        u[name] = 0.001 * k  # moving at 1 unit/s: the last good value is the previous sample's
+    for bad in (np.nan, np.inf, -np.inf, 1e6):
+        seq = [dict(u) for u in good]
+        seq[3][name] = bad
+        zs, cs = _run(seq)
+        assert cs[3][name] == 0.002  # the last good value
+        assert cs[4][name] == 0.004  # back at once
+        assert zs[4]["bad_samples"] == 1.0 and zs[4]["fault_word"] == 0.0 and zs[4]["authority"] == 1.0
+
+
+@pytest.mark.parametrize("name", [c.name for c in gm.CHECKS] + ["dt"])
+def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
+    """NaN for 0.5 s: in fault from the 50th bad sample (latch_time 0.05 s), its bit in the fault word; the
+    authority falls by dt / ramp_time per period (0.2 s to 0); 1 s of good samples later the fault clears, the
+    filter and the law restart on that one period and the authority ramps back."""
+    seq = [_inputs() for _ in range(2000)]
+    for u in seq[100:600]:
+        u[name] = np.nan
+    zs, cs = _run(seq)
+    word = [z["fault_word"] for z in zs]
+    bit = float(2 ** gm.FAULT_BITS[name])
+    assert word[148] == 0.0 and word[149] == bit  # the 50th bad sample
+    assert all(np.isfinite(c[name]) for c in cs)
+    k = np.array([z["authority"] for z in zs])
+    assert k[149] == pytest.approx(1.0 - DT / S.ramp_time) and k[149 + 200] == 0.0
+    # good again from sample 600: the 1000th good sample (1 s) ends the fault
+    assert word[1598] == bit and word[1599] == 0.0
+    restarts = np.flatnonzero([z["restart"] for z in zs])
+    assert list(restarts) == [1599]
+    assert k[1599 + 200] == 1.0 and zs[-1]["bad_samples"] == 500.0
+
+
+def test_bad_period_uses_the_nominal_one():
+    for dt in (-1e-3, 0.0, np.nan, 1.0):
+        seq = [_inputs(), _inputs()]
+        seq[1]["dt"] = dt
+        _, cs = _run(seq)
+        assert cs[1]["dt"] == DT
+
+
+def test_bad_fix_mu_and_wheel_speeds_read_as_absent():
+    seq = [_inputs(), _inputs()]
+    seq[1].update(gps_valid=1.0, gps_course=np.nan, mu=np.nan, wheel_speed_rl=np.inf)
+    _, cs = _run(seq)
+    assert cs[1]["gps_valid"] == 0.0 and cs[1]["gps_course"] == 0.0
+    assert cs[1]["mu"] == gm.MU_NO_SENSOR
+    assert cs[1]["wheel_speed_rl"] == pytest.approx(16.7 / 0.3)
+
+
+@pytest.fixture(scope="module")
+def straight():
+    """The compact-ev ECU settled on a straight road at 60 km/h (3 s, 5 Hz course fixes): state and inputs."""
+    p = load_vehicle("compact-ev")
+    ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=True), TwoDofDesign(p.as_nominal()))
+    u = INPUTS.pack(**_inputs(60 / 3.6, ecu.wheel_radius))
+    z = ecu.initial_state()
+    for k in range(3000):
+        u[INPUTS.index("gps_valid")] = float(k % 200 == 0)
+        z, y = ecu_step(ecu, z, u, None, NUMPY)
+    y = dict(zip(OUTPUTS, y))
+    assert y["yaw_moment_cmd"] == 0.0 and y["steer_cmd"] == 0.0 and y["fault_word"] == 0.0
+    return ecu, z, u
+
+
+@pytest.mark.parametrize("name", ["speed", "steer", "yaw_rate", "ay", "steer_cmd_driver", "yaw_moment_applied",
+                                  "mu", "wheel_speed_rl", "gps_course", "dt"])
+def test_one_bad_sample_on_a_straight_road_does_nothing(straight, name):
+    """One NaN (and one dt of -1 ms) on a straight road at 60 km/h: every output finite on every period, no
+    steer and no yaw moment (the input replaced by its last good value; the course fix dropped)."""
+    ecu, z, u0 = straight
+    for bad in ((np.nan, -1e-3) if name == "dt" else (np.nan, np.inf)):
+        zz = z.copy()
+        for k in range(500):
+            u = u0.copy()
+            u[INPUTS.index("gps_valid")] = float(k % 200 == 0)
+            if k == 0:
+                u[INPUTS.index(name)] = bad
+                if name == "gps_course":
+                    u[INPUTS.index("gps_valid")] = 1.0
+            zz, y = ecu_step(ecu, zz, u, None, NUMPY)
+            assert np.all(np.isfinite(y)) and np.all(np.isfinite(zz))
+            out = dict(zip(OUTPUTS, y))
+            assert out["steer_cmd"] == 0.0 and out["yaw_moment_cmd"] == 0.0, (name, k, out)
+        assert out["bad_samples"] == 1.0 and out["fault_word"] == 0.0
+
+
+def test_a_non_finite_state_restarts(straight):
+    """A NaN in the ECU's state (memory corruption, an overflow): the step restarts the filter and the law
+    from their initial state on that period, flags it (bit 11) and never outputs a non-finite command."""
+    ecu, z, u = straight
+    zz = z.copy()
+    zz[5] = np.nan
+    zz, y = ecu_step(ecu, zz, u, None, NUMPY)
+    out = dict(zip(OUTPUTS, y))
+    assert out["fault_word"] == 2.0 ** gm.FAULT_BITS["state"] and np.all(np.isfinite(y)) and np.all(np.isfinite(zz))
+    zz, y = ecu_step(ecu, zz, u, None, NUMPY)
+    assert dict(zip(OUTPUTS, y))["fault_word"] == 0.0

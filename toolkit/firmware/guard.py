@@ -1,0 +1,192 @@
+"""The ECU's input guard: every input checked before the step uses it.
+
+Each period, before the filter and the law see anything, :func:`guard` checks the inputs of
+:data:`toolkit.firmware.ecu.INPUTS`:
+
+* ``dt``: used only if ``0 < dt <= dt_max``; otherwise the nominal period (a clock that jumps back
+  or stalls must not scale the filter's and the law's integration);
+* each physical signal (:data:`CHECKS`) against its physical range (a NaN or an infinity fails the
+  range, whatever the compiler's comparison of it) and, while it is not in fault, against a
+  plausible change since its last good value: ``|x - last| <= rate * dt + step``. A sample that
+  fails is replaced by the signal's last good value and counted (``bad_samples``);
+* a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
+  is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
+  wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
+
+A signal that fails for ``latch_time`` in a row is in fault: its bit in ``fault_word``
+(:data:`FAULT_BITS`) is set, and while it lasts the signal is read for range only (a value that
+has moved on for good is taken back once it is in range). It recovers after ``recover_time`` of
+good samples in a row (hysteresis). While a signal the law depends on (:data:`DEGRADING`) is in
+fault, the law's authority ``k`` ramps to 0 over ``ramp_time`` (steer command to the driver's,
+yaw moment to 0) and back to 1 over the same time once every such fault has recovered; at the
+recovery the filter and the law restart from their initial state (a restart at speed: the next
+course fix sets the heading). On clean inputs nothing of this changes a value: ``k`` is exactly 1,
+every signal passes as it came.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evstab.plants.backend import NUMPY
+from evstab.plants.errors import ModelError
+from evstab.plants.signals import Layout, Signal
+
+
+@dataclass(frozen=True)
+class Check:
+    """The plausibility of one physical input: range ``[lower, upper]`` and a change per period of at most
+    ``rate * dt + step`` from its last good value (``rate`` None: no rate check)."""
+
+    name: str
+    lower: float
+    upper: float
+    rate: float | None
+    step: float
+    bit: int
+    degrading: bool
+
+
+CHECKS = (
+    # 120 m/s and 50 m/s^2 (5 g): no car's wheel-speed signal moves more than that
+    Check("speed", -20.0, 120.0, 50.0, 1.0, 1, True),
+    # road-wheel angle: 1 rad is beyond any steering rack's travel; 5 rad/s is ~4,300 deg/s at the hand
+    # wheel (ratio 15), three times what a driver or an EPS motor achieves
+    Check("steer", -1.0, 1.0, 5.0, 0.01, 2, True),
+    # a +-300 deg/s yaw-rate sensor; 30 rad/s^2 of yaw acceleration is beyond a spinning car's (~10), and
+    # the step allows a CAN signal's quantisation (1.28 deg/s) and gyro noise
+    Check("yaw_rate", -5.3, 5.3, 30.0, 0.1, 3, True),
+    # +-5 g; no rate check: a vibrating body's accelerometer moves 4 m/s^2 per sample
+    Check("ay", -50.0, 50.0, None, 0.0, 4, True),
+    Check("steer_cmd_driver", -1.0, 1.0, 5.0, 0.01, 6, True),
+    # the motors' torque difference can step from one period to the next
+    Check("yaw_moment_applied", -1e5, 1e5, None, 0.0, 7, True),
+)
+"""The physical inputs checked for range and rate, with their fault bit and whether a fault in them takes
+the law's authority."""
+DEGRADING = tuple(c.name for c in CHECKS if c.degrading) + ("dt",)
+FAULT_BITS = {"dt": 0, **{c.name: c.bit for c in CHECKS}, "gps": 5, "mu": 8, "wheel_speed_rl": 9,
+              "wheel_speed_rr": 10, "state": 11}
+"""Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted)."""
+MU_NO_SENSOR = 10.0
+"""What an out-of-range ``mu`` reads as: no road-friction sensor (any value above the design's ``mu_max``)."""
+WHEEL_SPEED_MAX = 500.0
+"""[rad/s] Largest plausible wheel speed (about 600 km/h on a 0.33 m wheel)."""
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Timing of the input guard."""
+
+    dt_max: float = 0.1
+    """[s] Largest period used as given (a log replayed at 10 Hz still runs); above it, or at or below 0,
+    the nominal period."""
+    latch_time: float = 0.05
+    """[s] A signal failing its checks this long in a row is in fault."""
+    recover_time: float = 1.0
+    """[s] ... and recovers after this long of good samples in a row."""
+    ramp_time: float = 0.2
+    """[s] The law's authority ramps between 1 and 0 over this time."""
+
+    def __post_init__(self):
+        for k in ("dt_max", "latch_time", "recover_time", "ramp_time"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and v > 0):
+                raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
+
+
+_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr"]
+STATE = Layout("ECU guard state", [
+    *[Signal(f"last_{c.name}", "-", f"last good {c.name}") for c in CHECKS],
+    *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row") for s in _SIGNALS],
+    *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row") for s in _SIGNALS],
+    *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
+    Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
+    Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
+    Signal("restart", "-", "1 on the period the filter and the law restart"),
+    Signal("bad_samples", "-", "samples replaced since start"),
+    Signal("fault_word", "-", "bit per signal in fault (FAULT_BITS)"),
+])
+"""The guard's part of the ECU state."""
+
+
+def initial_state() -> np.ndarray:
+    z = STATE.zeros()
+    z[STATE.index("authority")] = 1.0
+    return z
+
+
+def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY):
+    """One period of the guard: ``(z, inputs) -> (z_next, clean inputs)``, inputs a dict of
+    :data:`toolkit.firmware.ecu.INPUTS` (numbers or casadi symbols)."""
+    st = STATE.as_dict(z)
+    nxt = dict(st)
+    clean = dict(g)
+    bad = {}
+    # the period first: everything below integrates with it
+    dt = g["dt"]
+    dt_ok = (dt > 0.0) * (dt <= s.dt_max)
+    dt_c = o.if_else(dt_ok, dt, dt_nominal)
+    clean["dt"] = dt_c
+    bad["dt"] = 1.0 - dt_ok
+    first = 1.0 - st["started"]
+    nxt["started"] = 1.0 + 0.0 * dt_c
+    for c in CHECKS:
+        x, last, fault = g[c.name], st[f"last_{c.name}"], st[f"fault_{c.name}"]
+        ok = (x >= c.lower) * (x <= c.upper)
+        if c.rate is not None:
+            # against the last good value; not while in fault (a signal that moved on for good comes back), nor
+            # on the first period (an ECU that starts at speed)
+            near = o.fabs(x - last) <= c.rate * dt_c + c.step
+            ok = ok * o.fmax(near, o.fmax(fault, first))
+        clean[c.name] = o.if_else(ok, x, last)
+        nxt[f"last_{c.name}"] = clean[c.name]
+        bad[c.name] = 1.0 - ok
+    # a course fix with a non-finite course, HDOP or satellite count, or HDOP <= 0, is not a fix
+    fix = g["gps_valid"] > 0.5
+    fix_ok = (o.fabs(g["gps_course"]) < 1e30) * (g["gps_hdop"] > 0.0) * (g["gps_hdop"] < 1e30) * \
+        (o.fabs(g["gps_sats"]) < 1e30)
+    clean["gps_valid"] = fix * fix_ok
+    clean["gps_course"] = o.if_else(fix * fix_ok, g["gps_course"], 0.0)
+    clean["gps_hdop"] = o.if_else(fix_ok, g["gps_hdop"], 1.0)
+    clean["gps_sats"] = o.if_else(fix_ok, g["gps_sats"], 0.0)
+    clean["gps_speed"] = o.if_else(o.fabs(g["gps_speed"]) < 1e30, g["gps_speed"], 0.0)
+    bad["gps"] = fix * (1.0 - fix_ok)
+    mu_ok = (g["mu"] >= 0.0) * (g["mu"] <= MU_NO_SENSOR)
+    clean["mu"] = o.if_else(mu_ok, g["mu"], MU_NO_SENSOR)
+    bad["mu"] = 1.0 - mu_ok
+    for side in ("rl", "rr"):
+        w = g[f"wheel_speed_{side}"]
+        w_ok = (w >= -WHEEL_SPEED_MAX) * (w <= WHEEL_SPEED_MAX)
+        clean[f"wheel_speed_{side}"] = o.if_else(w_ok, w, clean["speed"] / wheel_radius)
+        bad[f"wheel_speed_{side}"] = 1.0 - w_ok
+    word = 0.0 * dt_c
+    for name in _SIGNALS:
+        b, fault = bad[name], st[f"fault_{name}"]
+        bad_t = (st[f"bad_{name}"] + dt_c) * b
+        good_t = (st[f"good_{name}"] + dt_c) * (1.0 - b)
+        # in fault from latch_time of failures in a row, until recover_time of good samples in a row; a quarter
+        # period short of each, so that float32 and float64 sums of the periods decide on the same sample
+        margin = 0.25 * dt_nominal
+        fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= s.recover_time - margin), bad_t >= s.latch_time - margin)
+        # the timers saturate: a drive of any length keeps them exact where they are compared
+        nxt[f"bad_{name}"] = o.fmin(bad_t, 2.0 * s.latch_time)
+        nxt[f"good_{name}"] = o.fmin(good_t, 2.0 * s.recover_time)
+        nxt[f"fault_{name}"] = fault_n
+        word = word + fault_n * float(2 ** FAULT_BITS[name])
+    was = 0.0 * dt_c
+    now = 0.0 * dt_c
+    for name in DEGRADING:
+        was = o.fmax(was, st[f"fault_{name}"])
+        now = o.fmax(now, nxt[f"fault_{name}"])
+    step = dt_c / s.ramp_time
+    nxt["authority"] = o.fmin(o.fmax(st["authority"] + o.if_else(now > 0.5, -step, step), 0.0), 1.0)
+    nxt["restart"] = was * (1.0 - now)
+    n_bad = 0.0 * dt_c
+    for name in _SIGNALS:
+        n_bad = n_bad + bad[name]
+    nxt["bad_samples"] = o.fmin(st["bad_samples"] + (n_bad > 0.5), 1e7)
+    nxt["fault_word"] = word
+    return STATE.pack(nxt, o), clean
