@@ -81,6 +81,7 @@ EXTRA = Layout("loop signals", [
     Signal("steer_rate", "rad/s", "rate of the applied road-wheel angle"),
     Signal("active", "-", "authority of the stability law"),
     Signal("mu_est", "-", "the ECU's friction estimate"),
+    Signal("fault_word", "-", "the ECU's fault word (toolkit.firmware.guard.FAULT_BITS)"),
 ])
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
 MEAS = Layout("loop readings", [
@@ -124,6 +125,10 @@ APPLIED = Layout("applied commands", [
 FLAGS = Layout("actuator flags", [Signal("steer_limited", "-", "last period's steer limit flag"),
                                   Signal("yaw_moment_limited", "-", "last period's motor limit flag")])
 CHUNK = 1000
+FAULT_PARAMS = ("set", "value", "add", "gain", "hold")
+"""Per ECU input, the run-time parameters of an injected fault (:class:`toolkit.ecu_faults.EcuFault`): inside
+the fault's window the input reads ``value`` where ``set``, its value just before the window where ``hold``
+(stuck), else ``gain`` times the reading plus ``add``."""
 
 
 # ------------------------------------------------------------------------------ the loop step
@@ -145,11 +150,16 @@ class LoopSpec:
     """Sensor set-up with the run-time parts (latency, gyro bias and scale) zeroed."""
     n_sub: int
     limits: ActuatorLimits = ActuatorLimits()
+    ecu_faults: bool = False
+    """Trace the fault injector between the sensors and the ECU (:data:`FAULT_PARAMS`: run-time parameters;
+    a sample clock and each input's held value in the loop state)."""
 
     @functools.cached_property
     def state_layout(self) -> Layout:
         """Loop state: plant, ECU, actuators, applied commands (:data:`APPLIED`), limit flags
-        (:data:`FLAGS`), GPS slots (:data:`GPS_SLOTS`)."""
+        (:data:`FLAGS`), GPS slots (:data:`GPS_SLOTS`); with ``ecu_faults`` the fault injector's."""
+        faults = [Signal("faults", "-", "the fault injector's sample clock and each ECU input's held value",
+                         1 + ECU_INPUTS.size)] if self.ecu_faults else []
         return Layout("loop state", [
             Signal("plant", "-", "the plant's state", len(get_plant(self.plant).states)),
             Signal("ecu", "-", "the ECU's state", self.ecu.n_state),
@@ -157,6 +167,7 @@ class LoopSpec:
             Signal("applied", "-", "APPLIED", APPLIED.size),
             Signal("flags", "-", "FLAGS", FLAGS.size),
             Signal("slots", "-", "GPS_SLOTS", GPS_SLOTS.size),
+            *faults,
         ])
 
     @property
@@ -166,8 +177,12 @@ class LoopSpec:
 
     @functools.cached_property
     def theta_layout(self) -> Layout:
-        """The run-time parameters: the ECU's calibration, then :data:`CASE`."""
-        return Layout("loop parameters", [Signal(n) for n in self.ecu.calibration_names()] + list(CASE.signals))
+        """The run-time parameters: the ECU's calibration, then :data:`CASE`; with ``ecu_faults`` the fault's
+        window (``fault_start``, ``fault_end`` [s]) and :data:`FAULT_PARAMS` per ECU input."""
+        faults = [Signal("fault_start", "s"), Signal("fault_end", "s")] + [
+            Signal(f"fault_{k}_{n}") for n in ECU_INPUTS for k in FAULT_PARAMS] if self.ecu_faults else []
+        return Layout("loop parameters", [Signal(n) for n in self.ecu.calibration_names()] + list(CASE.signals)
+                      + faults)
 
     @property
     def theta_names(self) -> tuple[str, ...]:
@@ -196,6 +211,8 @@ class LoopSpec:
         names += [f"actuator.{k}" for k in ACT_STATE] + [f"applied.{k}" for k in APPLIED]
         names += [f"flag.{k}" for k in FLAGS]
         names += [f"{j}.{k}" for j in GPS_SLOTS for k in SLOT]
+        if self.ecu_faults:
+            names += ["faults.clock"] + [f"faults.held_{n}" for n in ECU_INPUTS]
         if len(names) != sum(self.sizes):
             raise LoopError(f"loop state names ({len(names)}) do not match the loop state ({sum(self.sizes)})")
         return tuple(names)
@@ -256,7 +273,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     if ecu.kind == "driver":
         z_ecu_n = z_ecu
         steer_cmd, nz_cmd = steer_drv, 0.0 * steer_drv
-        beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = 0.0 * steer_drv
+        beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = fault_word = 0.0 * steer_drv
     else:
         valid = m["gps_valid"]
         g = {"dt": dt + 0.0 * steer_drv, "speed": m["speed"], "steer": m["steer"], "yaw_rate": m["yaw_rate"],
@@ -270,12 +287,14 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
             g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.ecu.wheel_radius
         else:
             g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
+        if spec.ecu_faults:
+            g, faults_n = _inject(spec, zs.faults, g, th, o)
         z_ecu_n, e = ecu.step(z_ecu, ECU_INPUTS.pack(g, o), tr, cal, o)
         out = ECU_OUTPUTS.as_dict(e)
         steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
-        active, mu_est = out["active"], out["mu_est"]
+        active, mu_est, fault_word = out["active"], out["mu_est"], out["fault_word"]
 
     # 3. actuators
     zero = 0.0 * steer_drv
@@ -302,13 +321,38 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "slots": GPS_SLOTS.pack(nxt, o)}
     if spec.ecu.n_state:
         parts["ecu"] = z_ecu_n
+    if spec.ecu_faults:
+        parts["faults"] = faults_n if ecu.kind != "driver" else zs.faults
     z_n = spec.state_layout.pack(parts, o)
     extra = EXTRA.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_driver=steer_drv, yaw_moment_cmd=nz_cmd,
                        beta_ref=beta_ref, yaw_rate_ref=yaw_rate_ref, beta_est=beta_est, yaw_rate_est=yaw_rate_est,
                        yaw_moment_limited=a["yaw_moment_limited"], steer_cmd=steer_cmd, steer_limited=a["steer_limited"],
                        steer_limited_last=flags.steer_limited, yaw_moment_limited_last=flags.yaw_moment_limited,
-                       steer_rate=rate, active=active, mu_est=mu_est)
+                       steer_rate=rate, active=active, mu_est=mu_est, fault_word=fault_word)
     return z_n, y, extra, meas
+
+
+def _inject(spec: LoopSpec, z_f, g: dict, th: dict, o):
+    """The ECU inputs ``g`` with the run's fault (:data:`FAULT_PARAMS`) inside its window; returns them and the
+    injector's next state (the clock one sample on; each input's held value, the reading until the window
+    opens)."""
+    clock = z_f[0]
+    t = clock * spec.dt
+    on = (t >= th["fault_start"]) * (t < th["fault_end"])
+    out, held_n = dict(g), []
+    for i, name in enumerate(ECU_INPUTS):
+        x, held = g[name], z_f[1 + i]
+        f = {k: th[f"fault_{k}_{name}"] for k in FAULT_PARAMS}
+        bad = o.if_else(f["set"] > 0.5, f["value"], o.if_else(f["hold"] > 0.5, held, x * f["gain"] + f["add"]))
+        out[name] = o.if_else(on, bad, x)
+        held_n.append(o.if_else(on, held, x))
+    return out, _vector([clock + 1.0] + held_n, o)
+
+
+def _vector(items, o):
+    if o is CASADI:
+        return ca.vertcat(*items)
+    return np.array([float(np.asarray(v)) for v in items])
 
 
 def _lane_step(spec: LoopSpec):
@@ -384,9 +428,10 @@ def run_stepped(spec: LoopSpec, params: VehicleParams, U: np.ndarray, z0: np.nda
 
 
 def loop_theta(spec: LoopSpec, *, gyro_bias: float = 0.0, gyro_scale_error: float = 0.0, mu_assumed: float = 1.0,
-               **calibration) -> np.ndarray:
+               fault=None, **calibration) -> np.ndarray:
     """The run-time parameter vector: the ECU's calibration (:meth:`EcuDesign.calibration`; entries
-    given by name replace the design's) and the case's gyro errors and assumed friction."""
+    given by name replace the design's), the case's gyro errors and assumed friction, and with ``ecu_faults``
+    the injected fault's (``fault``: a :class:`toolkit.ecu_faults.EcuFault`, None: none)."""
     names = spec.ecu.calibration_names()
     vals = dict(zip(names, spec.ecu.calibration_values()))
     over = dict(calibration)
@@ -395,7 +440,13 @@ def loop_theta(spec: LoopSpec, *, gyro_bias: float = 0.0, gyro_scale_error: floa
         raise LoopError(f"calibration {', '.join(unknown)} not in this ECU's ({', '.join(names)})")
     vals.update(over)
     case = {"gyro_bias": gyro_bias, "gyro_scale_error": gyro_scale_error, "mu_assumed": mu_assumed}
-    return np.array([float(vals[k]) for k in names] + [float(case[k]) for k in CASE])
+    theta = [float(vals[k]) for k in names] + [float(case[k]) for k in CASE]
+    if spec.ecu_faults:
+        from .ecu_faults import fault_parameters
+        theta += fault_parameters(fault)
+    elif fault is not None:
+        raise LoopError("a fault needs a loop traced with ecu_faults=True")
+    return np.array(theta)
 
 
 def samples(spec: LoopSpec, maneuver: Maneuver) -> int:
@@ -546,7 +597,7 @@ def loop_spec(nominal: VehicleParams, *, plant: str = "two-track", controller: s
               estimator: str | FilterDesign = "dakf", sensors: SensorConfig | None = None, dt: float = 1e-3,
               design: TwoDofDesign | EcuDesign | None = None, estimator_latency: float = 0.0,
               n_sub: int | None = None, truth: VehicleParams | None = None,
-              limits: ActuatorLimits = ActuatorLimits()) -> LoopSpec:
+              limits: ActuatorLimits = ActuatorLimits(), ecu_faults: bool = False) -> LoopSpec:
     """The trace-time part of a loop (see :class:`LoopSpec`). ``nominal`` is what the ECU believes;
     ``truth`` a parameter set of the plant (default: the multi-body set for ``commonroad-mb``
     plants, else ``nominal``), whose set fields the loop's plant-parameter vector holds."""
@@ -558,7 +609,7 @@ def loop_spec(nominal: VehicleParams, *, plant: str = "two-track", controller: s
     base = dataclasses.replace(sensors, gps_latency=0.0, gyro_bias=0.0, gyro_scale_error=0.0, gps_rate=5.0,
                                gps_start=0.0, gps_outages=())
     n_sub = n_sub if n_sub is not None else rk4_substeps(model, template, dt)
-    return LoopSpec(model.name, numeric_fields(template), float(dt), ecu, base, int(n_sub), limits)
+    return LoopSpec(model.name, numeric_fields(template), float(dt), ecu, base, int(n_sub), limits, ecu_faults)
 
 
 def traced(spec: LoopSpec) -> LoopSpec:

@@ -89,7 +89,7 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
              disturbances: Disturbances | None = None, sensors: SensorConfig | None = None,
              seed: int = 0, dt: float = 1e-3, compile: bool = True, controller: str | None = None,
              estimator="dakf", mu_assumed: float | None = None,
-             nominal: VehicleParams | None = None, design=None) -> SimResult:
+             nominal: VehicleParams | None = None, design=None, ecu_fault=None) -> SimResult:
     """Run one manoeuvre on one plant and return the named signals.
 
     Parameters
@@ -127,6 +127,8 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         The controller design (default seed 003's gains for ``nominal``); an
         :class:`~toolkit.firmware.ecu.EcuDesign` (a design folder's ECU) replaces filter and
         controller as a whole.
+    ecu_fault : EcuFault
+        A fault injected into one of the ECU's inputs (:mod:`toolkit.ecu_faults`); with a controller only.
 
     Returns
     -------
@@ -158,7 +160,8 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
         return _finish(model, params, maneuver, t, W, Y, COMMANDS.as_dict(cmd), None, None, sensors, seed, dt,
                        cp.backend, cp.n_sub)
     from . import closed_loop as cl
-    spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile)
+    spec, prog, theta = _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile,
+                              ecu_fault)
     U, z0, pv = cl.loop_inputs(spec, params, maneuver, disturbances, sensors, seed)
     if maneuver.open_loop and prog is not None:
         Yt, E, M = prog.run(U, z0, pv, theta, meas=True)
@@ -225,7 +228,7 @@ def _setup(plant, params, nominal, disturbances, sensors, dt):
     return model, params, nominal, disturbances, sensors
 
 
-def _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile):
+def _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu_assumed, compile, ecu_fault=None):
     """(spec, compiled program or None, theta) of the stability loop a simulation closes."""
     from . import closed_loop as cl
     from .estimation.spec import FilterDesign
@@ -233,12 +236,15 @@ def _loop(model, params, nominal, sensors, dt, controller, estimator, design, mu
     if kind != "driver" and kind not in cl.CONTROLLERS:
         raise SimulationError(f"unknown controller '{controller}'; known: {', '.join(cl.CONTROLLERS)}")
     lat = sensors.gps_latency if not isinstance(estimator, FilterDesign) else 0.0
+    if ecu_fault is not None and kind == "driver":
+        raise SimulationError("an ECU fault needs a controller in the loop")
     spec = cl.loop_spec(nominal or params, plant=model.name, controller=kind, estimator=estimator,
-                        sensors=sensors, dt=dt, design=design, estimator_latency=lat, truth=params)
+                        sensors=sensors, dt=dt, design=design, estimator_latency=lat, truth=params,
+                        ecu_faults=ecu_fault is not None)
     prog = cl.program(spec) if compile else None
     no_sensor = spec.ecu.ecu.controller.mu_max if spec.ecu.ecu is not None else 1.0
     theta = cl.loop_theta(spec, gyro_bias=sensors.gyro_bias, gyro_scale_error=sensors.gyro_scale_error,
-                          mu_assumed=no_sensor if mu_assumed is None else mu_assumed)
+                          mu_assumed=no_sensor if mu_assumed is None else mu_assumed, fault=ecu_fault)
     return spec, prog, theta
 
 

@@ -149,3 +149,28 @@ def test_a_non_finite_state_restarts(straight):
     assert out["fault_word"] == 2.0 ** gm.FAULT_BITS["state"] and np.all(np.isfinite(y)) and np.all(np.isfinite(zz))
     zz, y = ecu_step(ecu, zz, u, None, NUMPY)
     assert dict(zip(OUTPUTS, y))["fault_word"] == 0.0
+
+
+def test_the_gps_is_in_fault_after_three_bad_fixes_and_back_after_five_good():
+    """Counted in fixes (5 Hz: one every 200 samples), not in periods: the samples between fixes say nothing."""
+    seq = [_inputs() for _ in range(4000)]
+    fixes = list(range(0, 4000, 200))
+    for k in fixes:
+        seq[k].update(gps_valid=1.0, gps_course=0.0)
+    for k in fixes[2:5]:  # three bad fixes in a row
+        seq[k]["gps_course"] = np.nan
+    zs, cs = _run(seq)
+    bit = 2.0 ** gm.FAULT_BITS["gps"]
+    word = [z["fault_word"] for z in zs]
+    assert word[fixes[3]] == 0.0 and word[fixes[4]] == bit  # the third bad fix
+    assert word[fixes[9] - 1] == bit and word[fixes[9]] == 0.0  # the fifth good fix after them
+    assert all(zs[k]["authority"] == 1.0 for k in range(4000))  # the filter bridges a GPS outage: no ramp
+    assert [c["gps_valid"] for c in cs if c["gps_valid"]] == [1.0] * (len(fixes) - 3)
+
+
+def test_an_accelerometer_spike_inside_its_range_is_replaced():
+    """A 40 m/s^2 spike (inside +-50) from 0: more than 500 m/s^3 x 1 ms + 20 m/s^2 from the last good value."""
+    seq = [_inputs() for _ in range(3)]
+    seq[1]["ay"] = 40.0
+    zs, cs = _run(seq)
+    assert cs[1]["ay"] == 0.0 and zs[1]["bad_samples"] == 1.0

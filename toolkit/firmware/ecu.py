@@ -312,6 +312,11 @@ def _state_layout(filter_signals: tuple) -> Layout:
                                 Signal("guard", "-", "the input guard's state", guard_mod.STATE.size)])
 
 
+def before_guard(lay: Layout) -> slice:
+    """The filter's and the controller's part of the ECU state ``lay``: everything before the input guard's."""
+    return slice(0, lay.index("guard"))
+
+
 def filter_part(lay: Layout) -> slice:
     """The filter's part of the ECU state ``lay`` (:func:`state_layout`): everything before the controller's."""
     return slice(0, lay.index("controller"))
@@ -446,7 +451,7 @@ def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
     """
     lay = d.layout
     zg_n, u_c = ecu_guard(d, z, u, o)
-    z = o.concat([z[0:lay.index("guard")], zg_n])
+    z = o.concat([z[before_guard(lay)], zg_n])
     return ecu_core(d, z, u_c, sched, o, with_course, moving)
 
 
@@ -471,7 +476,7 @@ def traced_guard(d: EcuDesign):
     lay = d.layout
     z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
     zg_n, u_c = ecu_guard(d, z, u, CASADI)
-    zn = ca.vertcat(z[0:lay.index("guard")], zg_n)
+    zn = ca.vertcat(z[before_guard(lay)], zg_n)
     return ca.Function("ecu_guard", [z, u], [zn, u_c], ["z", "u"], ["z_next", "u_clean"])
 
 

@@ -13,7 +13,8 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
   wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
 
-A signal that fails for ``latch_time`` in a row is in fault: its bit in ``fault_word``
+A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
+row, recovering after :data:`GPS_RECOVER_FIXES` good ones): its bit in ``fault_word``
 (:data:`FAULT_BITS`) is set, and while it lasts the signal is read for range only (a value that
 has moved on for good is taken back once it is in range). It recovers after ``recover_time`` of
 good samples in a row (hysteresis). While a signal the law depends on (:data:`DEGRADING`) is in
@@ -58,8 +59,9 @@ CHECKS = (
     # a +-300 deg/s yaw-rate sensor; 30 rad/s^2 of yaw acceleration is beyond a spinning car's (~10), and
     # the step allows a CAN signal's quantisation (1.28 deg/s) and gyro noise
     Check("yaw_rate", -5.3, 5.3, 30.0, 0.1, 3, True),
-    # +-5 g; no rate check: a vibrating body's accelerometer moves 4 m/s^2 per sample
-    Check("ay", -50.0, 50.0, None, 0.0, 4, True),
+    # +-5 g; a vibrating body's accelerometer moves 4 m/s^2 per sample (5.7 m/s^2 between two): 20 m/s^2 from
+    # the last good value is 3.5 of those, and 500 m/s^3 of jerk more than a car's (a kerb strike's ~100)
+    Check("ay", -50.0, 50.0, 500.0, 20.0, 4, True),
     Check("steer_cmd_driver", -1.0, 1.0, 5.0, 0.01, 6, True),
     # the motors' torque difference can step from one period to the next
     Check("yaw_moment_applied", -1e5, 1e5, None, 0.0, 7, True),
@@ -72,6 +74,10 @@ FAULT_BITS = {"dt": 0, **{c.name: c.bit for c in CHECKS}, "gps": 5, "mu": 8, "wh
 """Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted)."""
 MU_NO_SENSOR = 10.0
 """What an out-of-range ``mu`` reads as: no road-friction sensor (any value above the design's ``mu_max``)."""
+GPS_LATCH_FIXES = 3
+GPS_RECOVER_FIXES = 5
+"""The GPS is in fault after this many bad fixes in a row (its fixes come at 5-10 Hz, not every period) and
+recovers after ``GPS_RECOVER_FIXES`` good ones."""
 WHEEL_SPEED_MAX = 500.0
 """[rad/s] Largest plausible wheel speed (about 600 km/h on a 0.33 m wheel)."""
 
@@ -100,8 +106,8 @@ class GuardSettings:
 _SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr"]
 STATE = Layout("ECU guard state", [
     *[Signal(f"last_{c.name}", "-", f"last good {c.name}") for c in CHECKS],
-    *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row") for s in _SIGNALS],
-    *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row") for s in _SIGNALS],
+    *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
+    *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
     Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
     Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
@@ -165,15 +171,22 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     word = 0.0 * dt_c
     for name in _SIGNALS:
         b, fault = bad[name], st[f"fault_{name}"]
-        bad_t = (st[f"bad_{name}"] + dt_c) * b
-        good_t = (st[f"good_{name}"] + dt_c) * (1.0 - b)
-        # in fault from latch_time of failures in a row, until recover_time of good samples in a row; a quarter
-        # period short of each, so that float32 and float64 sums of the periods decide on the same sample
-        margin = 0.25 * dt_nominal
-        fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= s.recover_time - margin), bad_t >= s.latch_time - margin)
-        # the timers saturate: a drive of any length keeps them exact where they are compared
-        nxt[f"bad_{name}"] = o.fmin(bad_t, 2.0 * s.latch_time)
-        nxt[f"good_{name}"] = o.fmin(good_t, 2.0 * s.recover_time)
+        if name == "gps":  # counted in fixes: the samples between two fixes say nothing
+            bad_t = o.if_else(fix, (st["bad_gps"] + 1.0) * b, st["bad_gps"])
+            good_t = o.if_else(fix, (st["good_gps"] + 1.0) * (1.0 - b), st["good_gps"])
+            fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= GPS_RECOVER_FIXES - 0.5), bad_t >= GPS_LATCH_FIXES - 0.5)
+            nxt["bad_gps"] = o.fmin(bad_t, 2.0 * GPS_LATCH_FIXES)
+            nxt["good_gps"] = o.fmin(good_t, 2.0 * GPS_RECOVER_FIXES)
+        else:
+            bad_t = (st[f"bad_{name}"] + dt_c) * b
+            good_t = (st[f"good_{name}"] + dt_c) * (1.0 - b)
+            # in fault from latch_time of failures in a row, until recover_time of good samples in a row; a
+            # quarter period short of each, so that float32 and float64 sums of the periods decide alike
+            margin = 0.25 * dt_nominal
+            fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= s.recover_time - margin), bad_t >= s.latch_time - margin)
+            # the timers saturate: a drive of any length keeps them exact where they are compared
+            nxt[f"bad_{name}"] = o.fmin(bad_t, 2.0 * s.latch_time)
+            nxt[f"good_{name}"] = o.fmin(good_t, 2.0 * s.recover_time)
         nxt[f"fault_{name}"] = fault_n
         word = word + fault_n * float(2 ** FAULT_BITS[name])
     was = 0.0 * dt_c

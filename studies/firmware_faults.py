@@ -1,0 +1,143 @@
+"""Single faults on every ECU input in the closed loop: what the ECU commands when an input goes wrong.
+
+The ECU (compact-ev, evstab's default filter and law, with its input guard: :mod:`toolkit.firmware.guard`)
+closes the loop on the two-track plant; :func:`toolkit.ecu_faults.single_faults` injects, between the
+sensors and the ECU, one fault at a time on each input: one NaN sample, NaN for 0.5 s, one +Inf sample, one
+spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolkit.ecu_faults.OFFSETS`).
+
+* **Straight road** at 60 and 120 km/h (6 s, the fault at 3 s, seed 1): every command finite; the largest
+  steer the ECU adds to the driver's and yaw moment it commands, and for how long it intervenes (steer
+  beyond 0.01 deg or yaw moment beyond 10 N m); whether the fault word names the signal (faults of
+  50 ms and more: the guard's latch time). The issue's bound: at most 0.5 deg and 300 N m, for at most
+  100 ms (:data:`STEER_MAX_DEG`, :data:`YAW_MOMENT_MAX`, :data:`INTERVENTION_MAX_S`).
+* **ISO 3888-1 lane change** at 80 km/h on mu 1.0 and 100 km/h on mu 0.5 (seeds 0-2), the fault from the
+  driver's first steer: the peak sideslip against the car alone's, by the envelope's no-harm rule
+  (:func:`toolkit.envelope.judge`: at most 1.1 x the car alone's or 0.3 deg more).
+
+Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
+over the straight roads and over the lane changes), ``firmware_faults_summary.md``.
+
+Run: ``python -m evstab.studies.firmware_faults OUT_DIR [--quick]`` (quick: 60 km/h straight road and the
+80 km/h lane change, seed 0, the NaN and spike faults only).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from evstab.plants import load_vehicle
+from evstab.plants.disturbances import Disturbances, Friction
+from evstab.plants.maneuvers import make_maneuver
+from evstab.studies._common import out_dir, write_markdown, write_table
+from evstab.toolkit.ecu_faults import single_faults
+from evstab.toolkit.envelope import HARM_FACTOR, HARM_MARGIN_DEG
+from evstab.toolkit.firmware.guard import FAULT_BITS, GuardSettings
+from evstab.toolkit.simulator import simulate
+
+STEER_MAX_DEG = 0.5
+YAW_MOMENT_MAX = 300.0
+INTERVENTION_MAX_S = 0.1
+ACTING_STEER_DEG = 0.01
+ACTING_YAW_MOMENT = 10.0
+FAULT_AT = 3.0
+LATCH_S = GuardSettings().latch_time
+STRAIGHT = (60.0, 120.0)
+LANE_CHANGES = ((80.0, 1.0), (100.0, 0.5))
+SEEDS = (0, 1, 2)
+
+
+def straight_metrics(r, fault) -> dict:
+    c = r.commands
+    added = np.degrees(np.abs(c["steer_cmd"] - c["steer_driver"]))
+    nz = np.abs(c["yaw_moment_cmd"])
+    finite = bool(np.all(np.isfinite(c["steer_cmd"])) and np.all(np.isfinite(c["yaw_moment_cmd"])))
+    acting = (added > ACTING_STEER_DEG) | (nz > ACTING_YAW_MOMENT)
+    bit = FAULT_BITS["gps" if fault.signal.startswith("gps_") else fault.signal]
+    word = np.asarray(c["fault_word"], float)
+    # only what lasts the guard's latch time is latched (a single bad sample is replaced and counted)
+    named = bool(np.any((word.astype(np.int64) >> bit) & 1)) if fault.end - fault.start >= LATCH_S else None
+    return {"finite": finite, "added_steer_deg": float(np.nanmax(added)), "yaw_moment_nm": float(np.nanmax(nz)),
+            "intervention_s": float(acting.sum() * r.meta["dt"]), "named": named}
+
+
+def within_bound(row: dict) -> bool:
+    """The straight road's bound: finite commands, added steer and yaw moment within their bounds, intervening
+    no longer than :data:`INTERVENTION_MAX_S`."""
+    return bool(row["finite"] and row["added_steer_deg"] <= STEER_MAX_DEG and row["yaw_moment_nm"] <= YAW_MOMENT_MAX
+                and row["intervention_s"] <= INTERVENTION_MAX_S)
+
+
+def no_harm(peak_deg: float, alone_deg: float) -> bool:
+    """The envelope's no-harm rule on the peak sideslip: at most ``HARM_FACTOR`` x the car alone's or
+    ``HARM_MARGIN_DEG`` more."""
+    return bool(np.isfinite(peak_deg) and peak_deg <= max(HARM_FACTOR * alone_deg, alone_deg + HARM_MARGIN_DEG))
+
+
+def main(out, quick: bool = False) -> list[dict]:
+    out = out_dir(out)
+    p = load_vehicle("compact-ev")
+    rows = []
+    kinds = ("nan", "value") if quick else None
+    for kmh in STRAIGHT[:1] if quick else STRAIGHT:
+        man = make_maneuver("step-steer", p, kmh / 3.6, 0.0)
+        for f in single_faults(FAULT_AT):
+            if kinds and f.kind not in kinds:
+                continue
+            r = simulate(p, "two-track", man, seed=1, controller="two-dof", ecu_fault=f)
+            row = {"case": f"straight {kmh:.0f} km/h", "signal": f.signal, "fault": f.label, **straight_metrics(r, f)}
+            row["within_bound"] = within_bound(row)
+            rows.append(row)
+            print(row, flush=True)
+    for kmh, mu in LANE_CHANGES[:1] if quick else LANE_CHANGES:
+        man = make_maneuver("iso3888-1", p, kmh / 3.6)
+        road = Disturbances(friction=Friction(mu=mu))
+        for seed in SEEDS[:1] if quick else SEEDS:
+            alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
+            peak_alone = float(np.degrees(np.nanmax(np.abs(alone.truth["beta"]))))
+            start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
+            for f in single_faults(start):
+                if kinds and f.kind not in kinds:
+                    continue
+                r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", ecu_fault=f)
+                peak = float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+                finite = bool(np.all(np.isfinite(r.commands["steer_cmd"])) and
+                              np.all(np.isfinite(r.commands["yaw_moment_cmd"])))
+                row = {"case": f"ISO 3888-1 {kmh:.0f} km/h mu {mu:g}, seed {seed}", "signal": f.signal, "fault": f.label,
+                       "finite": finite, "peak_beta_deg": peak, "alone_peak_beta_deg": peak_alone,
+                       "no_harm": no_harm(peak, peak_alone)}
+                rows.append(row)
+                print(row, flush=True)
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    write_table([{k: r.get(k, "") for k in keys} for r in rows], out / "firmware_faults.csv")
+    table = {}
+    for r in rows:
+        t = table.setdefault((r["signal"], r["fault"]), {"steer": 0.0, "nz": 0.0, "time": 0.0, "named": None,
+                                                          "excess": -np.inf, "ok": True})
+        if "added_steer_deg" in r:
+            t["steer"], t["nz"] = max(t["steer"], r["added_steer_deg"]), max(t["nz"], r["yaw_moment_nm"])
+            t["time"] = max(t["time"], r["intervention_s"])
+            if r["named"] is not None:
+                t["named"] = r["named"] if t["named"] is None else (t["named"] and r["named"])
+            t["ok"] &= r["within_bound"]
+        else:
+            t["excess"] = max(t["excess"], r["peak_beta_deg"] - r["alone_peak_beta_deg"])
+            t["ok"] &= r["no_harm"] and r["finite"]
+    write_markdown(out / "firmware_faults_table.md",
+                   ["input", "fault", "added steer [deg]", "yaw moment [N m]", "intervening [ms]", "fault word names it",
+                    "lane change: peak sideslip less the car alone's [deg]", "verdict"],
+                   [[s, f.split(", ")[0].split(" ", 1)[1] + ", " + f.split(", ")[1], f"{t['steer']:.3f}", f"{t['nz']:.0f}",
+                     f"{1000 * t['time']:.0f}", "-" if t["named"] is None else ("yes" if t["named"] else "no"),
+                     f"{t['excess']:+.2f}" if np.isfinite(t["excess"]) else "-", "pass" if t["ok"] else "FAIL"]
+                    for (s, f), t in table.items()])
+    runs = len(rows)
+    passed = sum(bool(r.get("within_bound", r.get("no_harm")) and r["finite"]) for r in rows)
+    write_markdown(out / "firmware_faults_summary.md", ["runs", "commands finite", "within the rules"],
+                   [[runs, sum(r["finite"] for r in rows), passed]])
+    return rows
+
+
+if __name__ == "__main__":
+    args = [a for a in sys.argv[1:] if a != "--quick"]
+    main(args[0] if args else "out/studies", quick="--quick" in sys.argv)
