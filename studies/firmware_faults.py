@@ -12,7 +12,9 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
   100 ms (:data:`STEER_MAX_DEG`, :data:`YAW_MOMENT_MAX`, :data:`INTERVENTION_MAX_S`).
 * **ISO 3888-1 lane change** at 80 km/h on mu 1.0 and 100 km/h on mu 0.5 (seeds 0-2), the fault from the
   driver's first steer: the peak sideslip against the car alone's, by the envelope's no-harm rule
-  (:func:`toolkit.envelope.judge`: at most 1.1 x the car alone's or 0.3 deg more).
+  (:func:`toolkit.envelope.judge`: at most 1.1 x the car alone's or 0.3 deg more), and by the same rule
+  against the controlled car without the fault (where the law alone already breaks the rule, a row reads
+  "as without the fault" when the fault adds nothing beyond it).
 
 Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
 over the straight roads and over the lane changes), ``firmware_faults_summary.md``.
@@ -96,6 +98,8 @@ def main(out, quick: bool = False) -> list[dict]:
         for seed in SEEDS[:1] if quick else SEEDS:
             alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
             peak_alone = float(np.degrees(np.nanmax(np.abs(alone.truth["beta"]))))
+            clean = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof")
+            peak_clean = float(np.degrees(np.nanmax(np.abs(clean.truth["beta"]))))
             start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
             for f in single_faults(start):
                 if kinds and f.kind not in kinds:
@@ -106,7 +110,8 @@ def main(out, quick: bool = False) -> list[dict]:
                               np.all(np.isfinite(r.commands["yaw_moment_cmd"])))
                 row = {"case": f"ISO 3888-1 {kmh:.0f} km/h mu {mu:g}, seed {seed}", "signal": f.signal, "fault": f.label,
                        "finite": finite, "peak_beta_deg": peak, "alone_peak_beta_deg": peak_alone,
-                       "no_harm": no_harm(peak, peak_alone)}
+                       "no_fault_peak_beta_deg": peak_clean, "no_harm": no_harm(peak, peak_alone),
+                       "as_without_fault": no_harm(peak, peak_clean)}
                 rows.append(row)
                 print(row, flush=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))
@@ -114,7 +119,8 @@ def main(out, quick: bool = False) -> list[dict]:
     table = {}
     for r in rows:
         t = table.setdefault((r["signal"], r["fault"]), {"steer": 0.0, "nz": 0.0, "time": 0.0, "named": None,
-                                                          "excess": -np.inf, "ok": True})
+                                                          "excess": -np.inf, "by_fault": -np.inf, "ok": True,
+                                                          "fault_ok": True})
         if "added_steer_deg" in r:
             t["steer"], t["nz"] = max(t["steer"], r["added_steer_deg"]), max(t["nz"], r["yaw_moment_nm"])
             t["time"] = max(t["time"], r["intervention_s"])
@@ -123,18 +129,31 @@ def main(out, quick: bool = False) -> list[dict]:
             t["ok"] &= r["within_bound"]
         else:
             t["excess"] = max(t["excess"], r["peak_beta_deg"] - r["alone_peak_beta_deg"])
+            t["by_fault"] = max(t["by_fault"], r["peak_beta_deg"] - r["no_fault_peak_beta_deg"])
             t["ok"] &= r["no_harm"] and r["finite"]
+            t["fault_ok"] &= r["as_without_fault"] and r["finite"]
     write_markdown(out / "firmware_faults_table.md",
                    ["input", "fault", "added steer [deg]", "yaw moment [N m]", "intervening [ms]", "fault word names it",
-                    "lane change: peak sideslip less the car alone's [deg]", "verdict"],
+                    "lane change: peak sideslip less the car alone's [deg]",
+                    "... less the controlled car's without the fault [deg]", "verdict"],
                    [[s, f.split(", ")[0].split(" ", 1)[1] + ", " + f.split(", ")[1], f"{t['steer']:.3f}", f"{t['nz']:.0f}",
                      f"{1000 * t['time']:.0f}", "-" if t["named"] is None else ("yes" if t["named"] else "no"),
-                     f"{t['excess']:+.2f}" if np.isfinite(t["excess"]) else "-", "pass" if t["ok"] else "FAIL"]
+                     f"{t['excess']:+.2f}" if np.isfinite(t["excess"]) else "-",
+                     f"{t['by_fault']:+.2f}" if np.isfinite(t["by_fault"]) else "-",
+                     "pass" if t["ok"] else ("as without the fault" if t["fault_ok"] else "FAIL")]
                     for (s, f), t in table.items()])
     runs = len(rows)
     passed = sum(bool(r.get("within_bound", r.get("no_harm")) and r["finite"]) for r in rows)
-    write_markdown(out / "firmware_faults_summary.md", ["runs", "commands finite", "within the rules"],
-                   [[runs, sum(r["finite"] for r in rows), passed]])
+    as_clean = sum(bool(r.get("within_bound", r.get("as_without_fault")) and r["finite"]) for r in rows)
+    base = {}
+    for r in rows:
+        if "no_fault_peak_beta_deg" in r:
+            base[r["case"]] = (r["alone_peak_beta_deg"], r["no_fault_peak_beta_deg"])
+    write_markdown(out / "firmware_faults_summary.md", ["runs", "commands finite", "within the rules",
+                                                        "within the rules against the run without the fault"]
+                   + [f"{c}: car alone / controlled, no fault [deg]" for c in base],
+                   [[runs, sum(r["finite"] for r in rows), passed, as_clean]
+                    + [f"{a:.2f} / {b:.2f}" for a, b in base.values()]])
     return rows
 
 

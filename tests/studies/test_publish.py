@@ -20,7 +20,7 @@ REFERENCE = {
     "formats.md": ("column|unit|required|possible range", "key|meaning [unit]|required|range", "key|meaning"),
     "layout.md": ("where|what",),
     "models.md": ("symbol|name in code|meaning|unit|sign", "plant|what it has"),
-    "firmware.md": ("file|what",),
+    "firmware.md": ("file|what", "input|checked|a bad sample reads as"),
 }
 
 

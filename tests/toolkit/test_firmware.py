@@ -599,3 +599,16 @@ def test_simulate_with_a_design_folder_runs_its_ecu_in_the_loop(design_dir, ecu,
     assert main(args + ["--design", str(design_dir), "--estimator", "kf"]) == 2
     assert "--estimator" in capsys.readouterr().err
     assert main(args + ["--estimator", "kf"]) == 2  # a filter in the loop needs --controller
+
+
+@needs_cc
+def test_the_c_refuses_fast_math_and_promotes_no_float(firmware, tmp_path):
+    """The input guard finds NaN and Inf by comparisons that -ffast-math and -ffinite-math-only let the compiler
+    assume away: the header refuses them by name. The float32 build promotes nothing to double."""
+    precision, fw = firmware
+    src = str(fw / "evstab_firmware.c")
+    for flag in ("-ffast-math", "-ffinite-math-only"):
+        res = subprocess.run([CC, *STRICT, flag, "-c", src, "-o", str(tmp_path / "x.o")], capture_output=True, text=True)
+        assert res.returncode != 0 and "do not compile with -ffast-math" in res.stderr
+    if precision == "float32":
+        _run([CC, *STRICT, "-Wdouble-promotion", "-c", src, "-o", str(tmp_path / "y.o")])

@@ -65,8 +65,8 @@ def test_one_bad_sample_is_replaced_and_counted_not_a_fault(name):
 @pytest.mark.parametrize("name", [c.name for c in gm.CHECKS] + ["dt"])
 def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
     """NaN for 0.5 s: in fault from the 50th bad sample (latch_time 0.05 s), its bit in the fault word; the
-    authority falls by dt / ramp_time per period (0.2 s to 0); 1 s of good samples later the fault clears, the
-    filter and the law restart on that one period and the authority ramps back."""
+    authority falls by dt / ramp_time per period (0.2 s to 0); 0.2 s of good samples later (recover_time) the
+    fault clears, the filter and the law restart on that one period and the authority ramps back at once."""
     seq = [_inputs() for _ in range(2000)]
     for u in seq[100:600]:
         u[name] = np.nan
@@ -77,11 +77,25 @@ def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
     assert all(np.isfinite(c[name]) for c in cs)
     k = np.array([z["authority"] for z in zs])
     assert k[149] == pytest.approx(1.0 - DT / S.ramp_time) and k[149 + 200] == 0.0
-    # good again from sample 600: the 1000th good sample (1 s) ends the fault
-    assert word[1598] == bit and word[1599] == 0.0
+    # good again from sample 600: the 200th good sample (0.2 s) ends the fault
+    assert word[798] == bit and word[799] == 0.0
     restarts = np.flatnonzero([z["restart"] for z in zs])
-    assert list(restarts) == [1599]
-    assert k[1599 + 200] == 1.0 and zs[-1]["bad_samples"] == 500.0
+    assert list(restarts) == [799]
+    assert k[798] == 0.0 and k[799] == pytest.approx(DT / S.ramp_time) and k[799 + 199] == 1.0
+    assert zs[-1]["bad_samples"] == 500.0
+
+
+def test_a_restart_hold_keeps_the_authority_out():
+    """With restart_hold 0.5 s the authority stays 0 for 500 periods after the restart, then ramps."""
+    s = gm.GuardSettings(restart_hold=0.5)
+    seq = [_inputs() for _ in range(2000)]
+    for u in seq[100:600]:
+        u["yaw_rate"] = np.nan
+    z, k = gm.initial_state(), []
+    for u in seq:
+        z, _ = gm.guard(s, z, u, DT, 0.3, NUMPY)
+        k.append(gm.STATE.as_dict(z)["authority"])
+    assert k[799 + 499] == 0.0 and k[799 + 500] == pytest.approx(DT / s.ramp_time)
 
 
 def test_bad_period_uses_the_nominal_one():

@@ -56,6 +56,12 @@ def header(d: EcuDesign, p: Precision, info: dict) -> str:
 #ifndef EVSTAB_FIRMWARE_H
 #define EVSTAB_FIRMWARE_H
 
+/* The input guard finds NaN and infinite inputs by comparisons, which -ffast-math (-ffinite-math-only)
+ * lets the compiler assume away: build this file without those flags. */
+#if defined(__FAST_MATH__) || (defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__)
+#error "evstab_firmware: do not compile with -ffast-math or -ffinite-math-only (the input guard tests for NaN and Inf)"
+#endif
+
 #ifdef __cplusplus
 extern "C" {{
 #endif
