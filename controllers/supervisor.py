@@ -59,10 +59,13 @@ is behind the steady-state demand without being saturated) [m/s^2], the yaw mome
 authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-]."""
 
 
-def initial_state(d) -> list[float]:
-    return list(STATE.pack(active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
-                           mu_est=float(d.mu_max), steer_saturated=0.0, yaw_moment_saturated=0.0, ay_demand=0.0,
-                           slip_authority=1.0, slip_lag=0.0))
+def initial_state(d, o=NUMPY):
+    """The supervisor's state at the start: a list of numbers, or with ``o`` CASADI a column (``mu_max`` may be
+    a calibration symbol)."""
+    v = STATE.pack(o=o, active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
+                   mu_est=d.mu_max if o is not NUMPY else float(d.mu_max), steer_saturated=0.0,
+                   yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0)
+    return list(v) if o is NUMPY else v
 
 
 def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY):

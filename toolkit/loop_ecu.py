@@ -24,7 +24,7 @@ from .estimation import kalman as kal_mod
 from .estimation.spec import FilterDesign
 from .firmware import guard as guard_mod
 from .firmware.ecu import (CONTROL_STATE, FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign,
-                           ecu_control, ecu_estimate, rear_torques, restart, with_authority)
+                           control_start, ecu_control, ecu_estimate, rear_torques, restart, with_authority)
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 
@@ -116,11 +116,12 @@ class LoopEcu:
         u = ECU_INPUTS.pack(clean, o)
         g = ECU_INPUTS.as_dict(u)
         zero = 0.0 * g["dt"]
-        start = self.initial_state()
         z_f = z_all[self.layout.slot("filter")] if ne else None
-        z_c, z_c0 = z_all[ne:ne + nc - ng], start[ne:ne + nc - ng]
+        z_c = z_all[ne:ne + nc - ng]
+        # what a restart sets: the calibrated initial state (the supervisor starts from mu_max, a calibration)
+        z_c0 = np.zeros(nc - ng) if self.kind == "yaw-pi" else control_start(d, o)
         if ne:
-            z_f, z_c, broken = restart(z_f, z_c, zg, start[:ne], z_c0, o)
+            z_f, z_c, broken = restart(z_f, z_c, zg, kal_mod.initial_state(d.filter, 0.0, 0.0), z_c0, o)
         else:
             _, z_c, broken = restart(zero, z_c, zg, 0.0, z_c0, o)
         if self.has_filter:

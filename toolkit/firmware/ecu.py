@@ -454,15 +454,25 @@ def ecu_step(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
     return ecu_core(d, z, u_c, sched, o, with_course, moving)
 
 
+def control_start(d: EcuDesign, o=NUMPY):
+    """The controller's part of the initial state (:data:`CONTROL_STATE`) of ``d``, which may carry calibration
+    symbols (the supervisor starts from ``mu_max``): what a restart sets."""
+    law = ctl_mod.STATE.zeros()
+    if o is NUMPY:
+        return CONTROL_STATE.pack(controller=law, supervisor=np.asarray(sup_mod.initial_state(d.controller)))
+    import casadi as ca
+    return ca.vertcat(ca.DM(law), sup_mod.initial_state(d.controller, o))
+
+
 def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, moving: bool = False):
     """The step after the guard: ``(z, clean u) -> (z_next, y)``; ``z``'s guard part is the guard's new state,
     which it passes through."""
     d = with_schedule_rows(d, sched)
     lay = d.layout
-    z0 = d.initial_state()
     ctl = lay.span("controller", "supervisor")
     zg = z[lay.slot("guard")]
-    z_est, z_ctl, broken = restart(z[filter_part(lay)], z[ctl], zg, z0[filter_part(lay)], z0[ctl], o)
+    z_est, z_ctl, broken = restart(z[filter_part(lay)], z[ctl], zg, kalman.initial_state(d.filter, 0.0, 0.0),
+                                   control_start(d, o), o)
     z_est_n, est = ecu_estimate(d, z_est, u, o, with_course, moving)
     z_ctl_n, out = ecu_control(d, z_ctl, u, est, o)
     return o.concat([z_est_n, z_ctl_n, zg]), with_authority(out, u, zg, broken, o)
