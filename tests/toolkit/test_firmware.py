@@ -245,6 +245,15 @@ def test_gain_set_errors_name_the_field(tmp_path, design_dir):
     doc["calibration"] = [c for c in doc["calibration"] if c["name"] != "gate"]
     with pytest.raises(gains_mod.GainSetError, match="field 'calibration'.*gate"):
         gains_mod.load_gains(doc)
+    # a value outside the limits the A2L declares is refused (k_beta: 0.01 to 100 rad/s); at the limit it loads
+    for value, ok in ((100.0, True), (100.5, False), (0.005, False)):
+        doc = gain_set(design_dir)
+        next(c for c in doc["calibration"] if c["name"] == "k_beta")["value"] = value
+        if ok:
+            assert gains_mod.load_gains(doc)[0].controller.k_beta == value
+        else:
+            with pytest.raises(gains_mod.GainSetError, match=r"field 'calibration'.*'k_beta' is .*outside its limits"):
+                gains_mod.load_gains(doc)
     bad = tmp_path / "g.json"
     bad.write_text('{"format": "other"}')
     with pytest.raises(gains_mod.GainSetError, match=f"{bad}.*'format'"):

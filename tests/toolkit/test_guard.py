@@ -188,3 +188,32 @@ def test_an_accelerometer_spike_inside_its_range_is_replaced():
     seq[1]["ay"] = 40.0
     zs, cs = _run(seq)
     assert cs[1]["ay"] == 0.0 and zs[1]["bad_samples"] == 1.0
+
+
+def test_a_calibration_outside_its_limits_takes_the_authority():
+    """A calibration value outside the limits the A2L declares (k_beta 100.5 against [0.01, 100]; or NaN) is a
+    fault from the 50th period, bit 12, and the law ramps out; back inside, it recovers."""
+    p = load_vehicle("compact-ev")
+    ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=True), TwoDofDesign(p.as_nominal()))
+    names = [c.name for c in ecu.calibration()]
+    good = [c.value for c in ecu.calibration()]
+    u = INPUTS.pack(**_inputs(20.0, ecu.wheel_radius))
+    for wrong in (100.5, np.nan):
+        cal = list(good)
+        cal[names.index("k_beta")] = wrong
+        z = ecu.initial_state()
+        from evstab.toolkit.firmware.ecu import ecu_guard
+        words, ks = [], []
+        for k in range(500):
+            zg, _ = ecu_guard(ecu, z, u, NUMPY, cal if k < 300 else good)
+            z = np.concatenate([z[:ecu.layout.index("guard")], zg])
+            st = gm.STATE.as_dict(zg)
+            words.append(st["fault_word"])
+            ks.append(st["authority"])
+        assert words[48] == 0.0 and words[49] == 2.0 ** gm.FAULT_BITS["calibration"]
+        assert ks[49 + 200] == 0.0 and words[300 + 199] == 0.0  # back after 0.2 s of a good calibration
+    # at the limit itself it is good
+    cal = list(good)
+    cal[names.index("k_beta")] = 100.0
+    zg, _ = ecu_guard(ecu, ecu.initial_state(), u, NUMPY, cal)
+    assert gm.STATE.as_dict(zg)["bad_samples"] == 0.0

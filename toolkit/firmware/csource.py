@@ -217,7 +217,7 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
         name = in_names[k]
         return f"{name}_c" if _kind(name) in ("int", "flag") else f"clean->{name}"
     ints = [n for n in in_names if _kind(n) in ("int", "flag")]
-    body = emit_body(gfn, reads[:2], [target, clean_target], p)
+    body = emit_body(gfn, [reads[0], reads[1], reads[3]], [target, clean_target], p)
     parts.append(f"static void {PREFIX}_ecu_guard(evstab_real *z, const evstab_input_t *in, evstab_input_t *clean)\n{{")
     parts.append(f"    evstab_real {', '.join(n + '_c' for n in ints)};")
     parts.extend("    " + line for line in declare)

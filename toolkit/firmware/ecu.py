@@ -401,10 +401,14 @@ def rear_torques(d: EcuDesign, yaw_moment, o=NUMPY):
     return -diff, diff
 
 
-def ecu_guard(d: EcuDesign, z, u, o=NUMPY):
-    """The input guard (:mod:`toolkit.firmware.guard`): ``(z, u) -> (guard part of z_next, clean u)``."""
+def ecu_guard(d: EcuDesign, z, u, o=NUMPY, cal=None):
+    """The input guard (:mod:`toolkit.firmware.guard`): ``(z, u) -> (guard part of z_next, clean u)``. ``cal``: the
+    calibration values the step runs with (numbers or symbols; default the design's), checked against the
+    limits :meth:`EcuDesign.calibration` declares."""
+    lim = d.calibration()
+    values = [c.value for c in lim] if cal is None else cal
     zg_n, clean = guard_mod.guard(d.guard, z[d.layout.slot("guard")], INPUTS.as_dict(u), d.filter.dt_nominal,
-                                  d.wheel_radius, o)
+                                  d.wheel_radius, o, [(v, c.lower, c.upper) for v, c in zip(values, lim)])
     return zg_n, INPUTS.pack(clean, o)
 
 
@@ -479,14 +483,15 @@ def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
 
 
 def traced_guard(d: EcuDesign):
-    """casadi SX function ``ecu_guard``: ``(z, u) -> (z_next, u_clean)``, the input guard (:func:`ecu_guard`); of
-    ``z_next`` only the guard's part differs from ``z``."""
+    """casadi SX function ``ecu_guard``: ``(z, u, cal) -> (z_next, u_clean)``, the input guard (:func:`ecu_guard`,
+    the calibration values as inputs); of ``z_next`` only the guard's part differs from ``z``."""
     import casadi as ca
     lay = d.layout
     z, u = ca.SX.sym("z", d.n_state), ca.SX.sym("u", INPUTS.size)
-    zg_n, u_c = ecu_guard(d, z, u, CASADI)
+    cal = ca.SX.sym("cal", len(d.calibration()))
+    zg_n, u_c = ecu_guard(d, z, u, CASADI, [cal[i] for i in range(cal.shape[0])])
     zn = ca.vertcat(z[before_guard(lay)], zg_n)
-    return ca.Function("ecu_guard", [z, u], [zn, u_c], ["z", "u"], ["z_next", "u_clean"])
+    return ca.Function("ecu_guard", [z, u, cal], [zn, u_c], ["z", "u", "cal"], ["z_next", "u_clean"])
 
 
 def traced_steps(d: EcuDesign, moving: bool = False):

@@ -172,6 +172,10 @@ def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
     missing = [c.name for c in cal if c.name not in values]
     if missing:
         raise GainSetError(f"no value for {', '.join(missing)}")
+    for c in cal:  # the limits the A2L declares: a value outside them is refused, not clipped
+        v = values[c.name]
+        if not (isinstance(v, (int, float)) and c.lower <= v <= c.upper):
+            raise GainSetError(f"'{c.name}' is {v!r}, outside its limits [{c.lower:g}, {c.upper:g}] {c.unit}")
     ctl = dataclasses.replace(d.controller, **{c.name: float(values[c.name]) for c in cal if c.owner == "controller"})
     noise = dataclasses.replace(d.filter.noise, **{c.name: float(values[c.name]) for c in cal if c.owner == "noise"})
     filt: FilterDesign = dataclasses.replace(d.filter, noise=noise)

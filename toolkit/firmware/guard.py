@@ -68,10 +68,11 @@ CHECKS = (
 )
 """The physical inputs checked for range and rate, with their fault bit and whether a fault in them takes
 the law's authority."""
-DEGRADING = tuple(c.name for c in CHECKS if c.degrading) + ("dt",)
+DEGRADING = tuple(c.name for c in CHECKS if c.degrading) + ("dt", "calibration")
 FAULT_BITS = {"dt": 0, **{c.name: c.bit for c in CHECKS}, "gps": 5, "mu": 8, "wheel_speed_rl": 9,
-              "wheel_speed_rr": 10, "state": 11}
-"""Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted)."""
+              "wheel_speed_rr": 10, "state": 11, "calibration": 12}
+"""Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted;
+``calibration``: a calibration scalar outside the limits the A2L declares)."""
 MU_NO_SENSOR = 10.0
 """What an out-of-range ``mu`` reads as: no road-friction sensor (any value above the design's ``mu_max``)."""
 GPS_LATCH_FIXES = 3
@@ -114,7 +115,7 @@ class GuardSettings:
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
 
 
-_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr"]
+_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr", "calibration"]
 STATE = Layout("ECU guard state", [
     *[Signal(f"last_{c.name}", "-", f"last good {c.name}") for c in CHECKS],
     *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
@@ -144,9 +145,11 @@ def initial_state() -> np.ndarray:
     return z
 
 
-def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY):
+def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY, calibration=()):
     """One period of the guard: ``(z, inputs) -> (z_next, clean inputs)``, inputs a dict of
-    :data:`toolkit.firmware.ecu.INPUTS` (numbers or casadi symbols)."""
+    :data:`toolkit.firmware.ecu.INPUTS` (numbers or casadi symbols). ``calibration``: ``(value, lower, upper)``
+    of each calibration scalar (values numbers or symbols): one outside its limits (or not finite) is a fault
+    (``calibration``), which takes the law's authority until every value is back inside."""
     st = STATE.as_dict(z)
     nxt = dict(st)
     clean = dict(g)
@@ -180,6 +183,8 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     clean["gps_sats"] = o.if_else(fix_ok, g["gps_sats"], 0.0)
     clean["gps_speed"] = o.if_else(o.fabs(g["gps_speed"]) < 1e30, g["gps_speed"], 0.0)
     bad["gps"] = fix * (1.0 - fix_ok)
+    checks = [(v >= lo) * (v <= hi) for v, lo, hi in calibration]
+    bad["calibration"] = 1.0 - tree(checks, lambda a, b: a * b) if checks else 0.0 * dt_c
     mu_ok = (g["mu"] >= 0.0) * (g["mu"] <= MU_NO_SENSOR)
     clean["mu"] = o.if_else(mu_ok, g["mu"], MU_NO_SENSOR)
     bad["mu"] = 1.0 - mu_ok

@@ -107,15 +107,16 @@ class EcuProgram:
             ng = guard_mod.STATE.size
             g = traced_guard(d)
             lay = d.layout
-            zg, u = ca.MX.sym("zg", ng), ca.MX.sym("u", INPUTS.size)
+            nc = len(d.calibration())
+            zg, u, c = ca.MX.sym("zg", ng), ca.MX.sym("u", INPUTS.size), ca.MX.sym("c", nc)
             z_full = ca.vertcat(ca.MX.zeros(lay.index("guard")), zg)
-            zn, uc = g(z_full, u)
+            zn, uc = g(z_full, u, c)
             zg_n = zn[lay.index("guard"):]
-            step = ca.Function("guard_step", [zg, u], [zg_n, ca.vertcat(uc, zg_n)])
+            step = ca.Function("guard_step", [zg, u, c], [zg_n, ca.vertcat(uc, zg_n)])
             acc = step.mapaccum("guard_acc", CHUNK)
-            z0, U = ca.MX.sym("z0", ng), ca.MX.sym("U", INPUTS.size, CHUNK)
-            Z, Y = acc(z0, U)
-            self._guard_chunk = ca.Function("guard_chunk", [z0, U], [Z[:, -1], Y])
+            z0, U, C = ca.MX.sym("z0", ng), ca.MX.sym("U", INPUTS.size, CHUNK), ca.MX.sym("c", nc)
+            Z, Y = acc(z0, U, ca.repmat(C, 1, CHUNK))
+            self._guard_chunk = ca.Function("guard_chunk", [z0, U, C], [Z[:, -1], Y])
         return self._guard_chunk
 
     @property
@@ -154,7 +155,8 @@ class EcuProgram:
             return Y
         # the guard first (its state depends on the inputs alone), then the tables at the guarded speed
         G = run_chunks(z[ig:], [U], INPUTS.size + guard_mod.STATE.size, CHUNK,
-                       c_fn=self._gc if self.backend == "c" else None, casadi_fn=self.guard_chunk_fn)
+                       c_fn=self._gc if self.backend == "c" else None, casadi_fn=self.guard_chunk_fn,
+                       constants=[self.cal])
         Uc, ZG = np.ascontiguousarray(G[:, :INPUTS.size]), np.ascontiguousarray(G[:, INPUTS.size:])
         S = d.schedule_inputs(Uc[:, ispeed])
         return run_chunks(z[:ig], [Uc, S, ZG], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
