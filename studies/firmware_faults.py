@@ -17,7 +17,8 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
   "as without the fault" when the fault adds nothing beyond it).
 
 Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
-over the straight roads and over the lane changes), ``firmware_faults_summary.md``.
+over the straight roads and over the lane changes), ``firmware_faults_summary.md`` (counts),
+``firmware_faults_baseline.md`` (each lane change's peak sideslip, car alone and controlled without a fault).
 
 Run: ``python -m evstab.studies.firmware_faults OUT_DIR [--quick]`` (quick: 60 km/h straight road and the
 80 km/h lane change, seed 0, the NaN and spike faults only).
@@ -150,10 +151,11 @@ def main(out, quick: bool = False) -> list[dict]:
         if "no_fault_peak_beta_deg" in r:
             base[r["case"]] = (r["alone_peak_beta_deg"], r["no_fault_peak_beta_deg"])
     write_markdown(out / "firmware_faults_summary.md", ["runs", "commands finite", "within the rules",
-                                                        "within the rules against the run without the fault"]
-                   + [f"{c}: car alone / controlled, no fault [deg]" for c in base],
-                   [[runs, sum(r["finite"] for r in rows), passed, as_clean]
-                    + [f"{a:.2f} / {b:.2f}" for a, b in base.values()]])
+                                                        "within the rules against the run without the fault"],
+                   [[runs, sum(r["finite"] for r in rows), passed, as_clean]])
+    write_markdown(out / "firmware_faults_baseline.md", ["lane change", "car alone [deg]",
+                                                         "controlled, no fault [deg]"],
+                   [[c, f"{a:.2f}", f"{b:.2f}"] for c, (a, b) in base.items()])
     return rows
 
 
