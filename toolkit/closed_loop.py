@@ -346,13 +346,7 @@ def _inject(spec: LoopSpec, z_f, g: dict, th: dict, o):
         bad = o.if_else(f["set"] > 0.5, f["value"], o.if_else(f["hold"] > 0.5, held, x * f["gain"] + f["add"]))
         out[name] = o.if_else(on, bad, x)
         held_n.append(o.if_else(on, held, x))
-    return out, _vector([clock + 1.0] + held_n, o)
-
-
-def _vector(items, o):
-    if o is CASADI:
-        return ca.vertcat(*items)
-    return np.array([float(np.asarray(v)) for v in items])
+    return out, o.stack([clock + 1.0] + held_n)
 
 
 def _lane_step(spec: LoopSpec):

@@ -97,8 +97,7 @@ class LoopEcu:
         if ne:
             z[lay.slot("filter")] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
         if self.kind not in ("driver", "yaw-pi"):
-            z[lay.slot("control")] = np.concatenate([CONTROL_STATE.pack(controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(
-                sup_mod.initial_state(self.ecu.controller))), guard_mod.initial_state()])
+            z[lay.slot("control")] = np.concatenate([control_start(self.ecu), guard_mod.initial_state()])
         elif self.kind == "yaw-pi":
             z[lay.slot("control")][-guard_mod.STATE.size:] = guard_mod.initial_state()
         return z
@@ -110,16 +109,15 @@ class LoopEcu:
         # the input guard first (toolkit.firmware.guard), as in the ECU step
         ne, nc = self.sizes
         ng = guard_mod.STATE.size
-        z_all = z
-        zg, raw = z_all[ne + nc - ng:ne + nc], ECU_INPUTS.as_dict(u)
+        zg, raw = z[ne + nc - ng:ne + nc], ECU_INPUTS.as_dict(u)
         # the loop's calibration is a sweep's run-time input, which the design explores beyond the A2L's limits:
         # it is not checked here (the exported step checks its own, toolkit.firmware.ecu.ecu_guard)
         zg, clean = guard_mod.guard(d.guard, zg, raw, d.filter.dt_nominal, d.wheel_radius, o)
         u = ECU_INPUTS.pack(clean, o)
         g = ECU_INPUTS.as_dict(u)
         zero = 0.0 * g["dt"]
-        z_f = z_all[self.layout.slot("filter")] if ne else None
-        z_c = z_all[ne:ne + nc - ng]
+        z_f = z[self.layout.slot("filter")] if ne else None
+        z_c = z[ne:ne + nc - ng]
         # what a restart sets: the calibrated initial state (the supervisor starts from mu_max, a calibration)
         z_c0 = np.zeros(nc - ng) if self.kind == "yaw-pi" else control_start(d, o)
         if ne:

@@ -209,9 +209,8 @@ class EcuDesign:
 
     def initial_state(self) -> np.ndarray:
         """What ``evstab_init`` sets: heading 0 and yaw rate 0 (the first usable fix sets the heading)."""
-        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), CONTROL_STATE.pack(
-            controller=ctl_mod.STATE.zeros(), supervisor=np.asarray(sup_mod.initial_state(self.controller))),
-            guard_mod.initial_state()])
+        return np.concatenate([kalman.initial_state(self.filter, 0.0, 0.0), control_start(self),
+                               guard_mod.initial_state()])
 
     @property
     def min_speeds(self) -> tuple[float, float]:
