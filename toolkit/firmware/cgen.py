@@ -96,10 +96,12 @@ def _ops(p: Precision) -> dict:
         ca.OP_LE: lambda a: f"{a[0]} <= {a[1]}",
         ca.OP_EQ: lambda a: f"{a[0]} == {a[1]}",
         ca.OP_NE: lambda a: f"{a[0]} != {a[1]}",
-        ca.OP_NOT: lambda a: f"!{a[0]}",
-        ca.OP_AND: lambda a: f"{a[0]} && {a[1]}",
-        ca.OP_OR: lambda a: f"{a[0]} || {a[1]}",
-        ca.OP_IF_ELSE_ZERO: lambda a: f"{a[0]} ? {a[1]} : {p.literal(0.0)}",
+        # logic on reals as C reads a real in a condition (nonzero, NaN included, is true), spelled
+        # as the comparison with zero (a condition essentially boolean: MISRA C:2012 14.4)
+        ca.OP_NOT: lambda a: f"{a[0]} == {p.literal(0.0)}",
+        ca.OP_AND: lambda a: f"({a[0]} != {p.literal(0.0)}) && ({a[1]} != {p.literal(0.0)})",
+        ca.OP_OR: lambda a: f"({a[0]} != {p.literal(0.0)}) || ({a[1]} != {p.literal(0.0)})",
+        ca.OP_IF_ELSE_ZERO: lambda a: f"({a[0]} != {p.literal(0.0)}) ? {a[1]} : {p.literal(0.0)}",
         ca.OP_SIGN: lambda a: f"{a[0]} < 0 ? -{one} : ({a[0]} > 0 ? {one} : {a[0]})",
     }
 
@@ -136,16 +138,15 @@ def emit_body(f: ca.Function, reads, writes, precision: Precision, indent: str =
         elif op in ops:
             text = ops[op]([f"w{i}" for i in ins])
             if op in (ca.OP_LT, ca.OP_LE, ca.OP_EQ, ca.OP_NE, ca.OP_NOT, ca.OP_AND, ca.OP_OR):
-                text = f"({precision.ctype})({text})"
+                # the 0/1 casadi gives, selected rather than cast from the boolean (MISRA C:2012 10.5)
+                text = f"({text}) ? {precision.literal(1.0)} : {precision.literal(0.0)}"
             lines.append(f"w{outs[0]} = {text};")
             used.add(outs[0])
         else:
             raise ModelError(f"C emitter: casadi operation {_OP_NAMES.get(op, op)} in '{f.name()}' has no C "
                              f"translation here; add it to toolkit.firmware.cgen._ops")
-    decl = []
     names = [f"w{i}" for i in sorted(used)]
-    for i in range(0, len(names), 12):
-        decl.append(f"{precision.ctype} " + ", ".join(names[i:i + 12]) + ";")
+    decl = [f"{precision.ctype} {name};" for name in names]  # one per declaration (MISRA C:2012 12.3)
     return [indent + s for s in decl + lines]
 
 

@@ -143,7 +143,7 @@ def source(d: EcuDesign, p: Precision, info: dict) -> str:
                  + "};")
     parts.append(f"\n/* ---- initial state (evstab_init) ---- */\nstatic const evstab_real {PREFIX}_state0"
                  f"[EVSTAB_STATE_SIZE] = {c_array(d.initial_state(), p)};")
-    lerp = "\n".join(f"    rows[{r}] = {names[row]}[lo] + t * ({names[row]}[lo + 1] - {names[row]}[lo]);"
+    lerp = "\n".join(f"    rows[{r}] = {names[row]}[lo] + (t * ({names[row]}[lo + 1] - {names[row]}[lo]));"
                      for r, row in enumerate(ROWS))
     parts.append(f"""
 /* The filter's transition rows on segment lo at t (the schedule's rule, as below). */
@@ -151,7 +151,7 @@ static void {PREFIX}_transition_rows(int lo, evstab_real t, evstab_real *rows)
 {{
     int r;
     for (r = 0; r < {nf}; r++) {{
-        rows[r] = {PREFIX}_transition[r][lo] + t * ({PREFIX}_transition[r][lo + 1] - {PREFIX}_transition[r][lo]);
+        rows[r] = {PREFIX}_transition[r][lo] + (t * ({PREFIX}_transition[r][lo + 1] - {PREFIX}_transition[r][lo]));
     }}
 }}
 
@@ -167,18 +167,21 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
 {{
     const volatile evstab_real *ax = {names['inv_speed']};
     evstab_real x = {p.literal(1.0)} / v;
-    evstab_real t, x0, x1;
-    int lo = *seg, hi = EVSTAB_SCHEDULE_POINTS - 1;
+    evstab_real t;
+    evstab_real x0;
+    evstab_real x1;
+    int lo = *seg;
+    int hi = EVSTAB_SCHEDULE_POINTS - 1;
     if (x < ax[0]) {{
         x = ax[0];
     }}
     if (x > ax[EVSTAB_SCHEDULE_POINTS - 1]) {{
         x = ax[EVSTAB_SCHEDULE_POINTS - 1];
     }}
-    if (lo < 0 || lo > EVSTAB_SCHEDULE_POINTS - 2 || !(ax[lo] <= x)
-        || !(x < ax[lo + 1] || lo == EVSTAB_SCHEDULE_POINTS - 2)) {{
+    if ((lo < 0) || (lo > (EVSTAB_SCHEDULE_POINTS - 2)) || !(ax[lo] <= x)
+        || !((x < ax[lo + 1]) || (lo == (EVSTAB_SCHEDULE_POINTS - 2)))) {{
         lo = 0;
-        while (hi - lo > 1) {{
+        while ((hi - lo) > 1) {{
             int mid = (lo + hi) / 2;
             if (ax[mid] <= x) {{
                 lo = mid;
@@ -219,7 +222,7 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
     ints = [n for n in in_names if _kind(n) in ("int", "flag")]
     body = emit_body(gfn, [reads[0], reads[1], reads[3]], [target, clean_target], p)
     parts.append(f"static void {PREFIX}_ecu_guard(evstab_real *z, const evstab_input_t *in, evstab_input_t *clean)\n{{")
-    parts.append(f"    evstab_real {', '.join(n + '_c' for n in ints)};")
+    parts.extend(f"    evstab_real {n}_c;" for n in ints)
     parts.extend("    " + line for line in declare)
     parts.extend(body)
     parts.extend("    " + line for line in finish)
@@ -243,8 +246,9 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
                      if moving else "")
     parts.append(f"""void evstab_init(evstab_state_t *s)
 {{
-    memcpy(s->z, {PREFIX}_state0, sizeof s->z);
-    s->seg[0] = s->seg[1] = 0;
+    (void)memcpy(s->z, {PREFIX}_state0, sizeof s->z);
+    s->seg[0] = 0;
+    s->seg[1] = 0;
 }}
 
 void evstab_step(evstab_state_t *s, const evstab_input_t *raw, evstab_output_t *out)
@@ -261,7 +265,7 @@ void evstab_step(evstab_state_t *s, const evstab_input_t *raw, evstab_output_t *
     if (vc != vf) {{ /* below a minimum speed: the controller reads at its own */
         lo = {PREFIX}_segment(vc, &s->seg[1], &t);
     }}
-    {PREFIX}_schedule_rows(lo, t, sch + {nf});
+    {PREFIX}_schedule_rows(lo, t, &sch[{nf}]);
     if (in->gps_valid != 0) {{
         {PREFIX}_ecu_fix(s->z, in, sch, out);
     }}{moving_branch} else {{
