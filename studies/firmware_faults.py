@@ -16,9 +16,18 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
   against the controlled car without the fault (where the law alone already breaks the rule, a row reads
   "as without the fault" when the fault adds nothing beyond it).
 
+* **ECU reset at 100 km/h** (:func:`reset_runs`; seeds 0-2): the ECU resets and boots for 50 ms
+  (the driver's steer passed on, no yaw moment), then starts from ``evstab_init``'s state, in steady left
+  turns of 4 and 7 m/s^2 on mu 1 (at 5 s) and in the ISO 3888-1 lane change on mu 0.5 (0.5 s after the
+  driver's first steer, between its two lane changes). Against an ECU that never reset, replayed over
+  the same run's sensor log (:func:`shadow_commands`: the same car on the same path): how long after the
+  boot the commands differ by more than 0.05 deg or 50 N m ("the law is back"; at most 1 s), the largest
+  difference, and the peak sideslip by the no-harm rule against the car alone.
+
 Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
 over the straight roads and over the lane changes), ``firmware_faults_summary.md`` (counts),
-``firmware_faults_baseline.md`` (each lane change's peak sideslip, car alone and controlled without a fault).
+``firmware_faults_baseline.md`` (each lane change's peak sideslip, car alone and controlled without a fault),
+``firmware_faults_reset.md`` (the resets).
 
 Run: ``python -m evstab.studies.firmware_faults OUT_DIR [--quick]`` (quick: 60 km/h straight road and the
 80 km/h lane change, seed 0, the NaN and spike faults only).
@@ -32,9 +41,9 @@ import numpy as np
 
 from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
-from evstab.plants.maneuvers import make_maneuver
+from evstab.plants.maneuvers import constant_radius, make_maneuver
 from evstab.studies._common import out_dir, write_markdown, write_table
-from evstab.toolkit.ecu_faults import single_faults
+from evstab.toolkit.ecu_faults import EcuFault, single_faults
 from evstab.toolkit.envelope import HARM_FACTOR, HARM_MARGIN_DEG
 from evstab.toolkit.firmware.guard import FAULT_BITS, GuardSettings
 from evstab.toolkit.simulator import simulate
@@ -49,6 +58,13 @@ LATCH_S = GuardSettings().latch_time
 STRAIGHT = (60.0, 120.0)
 LANE_CHANGES = ((80.0, 1.0), (100.0, 0.5))
 SEEDS = (0, 1, 2)
+RESET_KMH = 100.0
+RESET_BOOT_S = 0.05
+RESET_TURNS_AY = (4.0, 7.0)
+RESET_AT = 5.0
+BACK_STEER_DEG = 0.05
+BACK_YAW_MOMENT = 50.0
+BACK_WITHIN_S = 1.0
 
 
 def straight_metrics(r, fault) -> dict:
@@ -76,6 +92,66 @@ def no_harm(peak_deg: float, alone_deg: float) -> bool:
     """The envelope's no-harm rule on the peak sideslip: at most ``HARM_FACTOR`` x the car alone's or
     ``HARM_MARGIN_DEG`` more."""
     return bool(np.isfinite(peak_deg) and peak_deg <= max(HARM_FACTOR * alone_deg, alone_deg + HARM_MARGIN_DEG))
+
+
+def back_after(t, steer, steer_ref, nz, nz_ref, from_t: float) -> tuple[float, float, float]:
+    """(seconds after ``from_t`` until the commands stay within :data:`BACK_STEER_DEG` and
+    :data:`BACK_YAW_MOMENT` of the reference's, the largest steer [deg] and yaw-moment [N m] difference
+    after ``from_t``). 0 when they never leave; inf when a command is not finite."""
+    k = t >= from_t - 1e-9
+    ds = np.degrees(np.abs(np.asarray(steer) - steer_ref))[k]
+    dn = np.abs(np.asarray(nz) - nz_ref)[k]
+    if not (np.all(np.isfinite(ds)) and np.all(np.isfinite(dn))):
+        return np.inf, np.inf, np.inf
+    out = np.flatnonzero((ds > BACK_STEER_DEG) | (dn > BACK_YAW_MOMENT))
+    back = float(t[k][out[-1]] + (t[1] - t[0]) - from_t) if len(out) else 0.0
+    return back, float(ds.max()), float(dn.max())
+
+
+def shadow_commands(ecu, r) -> tuple[np.ndarray, np.ndarray]:
+    """The steer and yaw-moment commands an ECU that never reset would have issued on run ``r``'s inputs:
+    the ECU step replayed (:func:`toolkit.firmware.replay.ecu_program`) over the run's own sensor log, so
+    that the comparison is with the same car on the same path (two closed-loop runs part ways)."""
+    from evstab.toolkit.firmware.ecu import OUTPUTS
+    from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
+    U = ecu_inputs(r.log_columns(), ecu.controller.mu_max, wheel_radius=ecu.wheel_radius)
+    y = OUTPUTS.columns(ecu_program(ecu).run(U))
+    return y["steer_cmd"], y["yaw_moment_cmd"]
+
+
+def reset_runs(p, quick: bool = False) -> list[dict]:
+    """The ECU resets at 100 km/h (see the module): one row per case and seed."""
+    from evstab.toolkit.loop_ecu import loop_ecu
+    ecu = loop_ecu("two-dof", p).ecu
+    v = RESET_KMH / 3.6
+    cases = [(f"left turn {ay:g} m/s^2, mu 1", constant_radius(v, v * v / ay, laps=0.25, lead_in=60.0), Disturbances(),
+              RESET_AT) for ay in RESET_TURNS_AY]
+    cases.append(("ISO 3888-1, mu 0.5", make_maneuver("iso3888-1", p, v), Disturbances(friction=Friction(mu=0.5)),
+                  None))
+    rows = []
+    for name, man, road, at in cases[:1] if quick else cases:
+        for seed in SEEDS[:1] if quick else SEEDS:
+            alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
+            clean = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=ecu)
+            start = at if at is not None else float(
+                alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))]) + 0.5
+            f = EcuFault("ecu", "reset", start, start + RESET_BOOT_S)
+            r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=ecu,
+                         ecu_fault=f)
+            c = r.commands
+            steer0, nz0 = shadow_commands(ecu, r)
+            back, ds, dn = back_after(r.t, c["steer_cmd"], steer0, c["yaw_moment_cmd"], nz0, f.end)
+            peak = float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+            peak_alone = float(np.degrees(np.nanmax(np.abs(alone.truth["beta"]))))
+            row = {"case": f"reset at {RESET_KMH:.0f} km/h: {name}", "seed": seed, "reset_at_s": start,
+                   "finite": bool(np.isfinite(back)), "back_after_s": back, "steer_diff_deg": ds,
+                   "yaw_moment_diff_nm": dn, "peak_beta_deg": peak,
+                   "no_reset_peak_beta_deg": float(np.degrees(np.nanmax(np.abs(clean.truth["beta"])))),
+                   "alone_peak_beta_deg": peak_alone, "no_harm": no_harm(peak, peak_alone),
+                   "back_in_time": bool(back <= BACK_WITHIN_S)}
+            rows.append(row)
+            print(row, flush=True)
+    return rows
 
 
 def main(out, quick: bool = False) -> list[dict]:
@@ -115,6 +191,16 @@ def main(out, quick: bool = False) -> list[dict]:
                        "as_without_fault": no_harm(peak, peak_clean)}
                 rows.append(row)
                 print(row, flush=True)
+    resets = reset_runs(p, quick)
+    write_markdown(out / "firmware_faults_reset.md",
+                   ["case", "seed", "reset at [s]", "law back after the boot [s]", "largest steer difference [deg]",
+                    "largest yaw-moment difference [N m]", "peak sideslip: reset / no reset / car alone [deg]",
+                    "verdict"],
+                   [[r["case"], r["seed"], f"{r['reset_at_s']:.2f}", f"{r['back_after_s']:.3f}",
+                     f"{r['steer_diff_deg']:.3f}", f"{r['yaw_moment_diff_nm']:.0f}",
+                     f"{r['peak_beta_deg']:.2f} / {r['no_reset_peak_beta_deg']:.2f} / {r['alone_peak_beta_deg']:.2f}",
+                     "pass" if (r["back_in_time"] and r["no_harm"] and r["finite"]) else
+                     ("FAIL: harm" if not r["no_harm"] else "FAIL: late")] for r in resets])
     keys = list(dict.fromkeys(k for r in rows for k in r))
     write_table([{k: r.get(k, "") for k in keys} for r in rows], out / "firmware_faults.csv")
     table = {}

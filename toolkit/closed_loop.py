@@ -178,8 +178,9 @@ class LoopSpec:
     @functools.cached_property
     def theta_layout(self) -> Layout:
         """The run-time parameters: the ECU's calibration, then :data:`CASE`; with ``ecu_faults`` the fault's
-        window (``fault_start``, ``fault_end`` [s]) and :data:`FAULT_PARAMS` per ECU input."""
-        faults = [Signal("fault_start", "s"), Signal("fault_end", "s")] + [
+        window (``fault_start``, ``fault_end`` [s]), ``fault_reset`` (1: the ECU resets, booting through the
+        window) and :data:`FAULT_PARAMS` per ECU input."""
+        faults = [Signal("fault_start", "s"), Signal("fault_end", "s"), Signal("fault_reset")] + [
             Signal(f"fault_{k}_{n}") for n in ECU_INPUTS for k in FAULT_PARAMS] if self.ecu_faults else []
         return Layout("loop parameters", [Signal(n) for n in self.ecu.calibration_names()] + list(CASE.signals)
                       + faults)
@@ -289,8 +290,17 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
             g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
         if spec.ecu_faults:
             g, faults_n = _inject(spec, zs.faults, g, th, o)
+            # an ECU reset: booting through the window (no step: the state is evstab_init's, the driver's
+            # steer passed on, no yaw moment); the first step after it starts from that state
+            booting = _window(spec, zs.faults, th) * (th["fault_reset"] > 0.5)
+            z_start = ecu.start_state(cal, o)
+            z_ecu = o.if_else(booting, z_start, z_ecu)
         z_ecu_n, e = ecu.step(z_ecu, ECU_INPUTS.pack(g, o), tr, cal, o)
         out = ECU_OUTPUTS.as_dict(e)
+        if spec.ecu_faults:
+            z_ecu_n = o.if_else(booting, z_start, z_ecu_n)
+            out = {k: o.if_else(booting, 0.0 * v, v) for k, v in out.items()}
+            out["steer_cmd"] = o.if_else(booting, steer_drv, out["steer_cmd"])
         steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
@@ -332,13 +342,18 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     return z_n, y, extra, meas
 
 
+def _window(spec: LoopSpec, z_f, th: dict):
+    """1 while the injector's clock (``z_f[0]``, samples) is inside the fault's window."""
+    t = z_f[0] * spec.dt
+    return (t >= th["fault_start"]) * (t < th["fault_end"])
+
+
 def _inject(spec: LoopSpec, z_f, g: dict, th: dict, o):
     """The ECU inputs ``g`` with the run's fault (:data:`FAULT_PARAMS`) inside its window; returns them and the
     injector's next state (the clock one sample on; each input's held value, the reading until the window
     opens)."""
     clock = z_f[0]
-    t = clock * spec.dt
-    on = (t >= th["fault_start"]) * (t < th["fault_end"])
+    on = _window(spec, z_f, th)
     out, held_n = dict(g), []
     for i, name in enumerate(ECU_INPUTS):
         x, held = g[name], z_f[1 + i]

@@ -9,7 +9,11 @@ library serves every fault. Kinds:
 * ``value``: it reads ``value`` (a spike when the window is one sample, a wrong constant otherwise);
 * ``offset``: the reading plus ``value``;
 * ``scale``: the reading times ``value``;
-* ``stuck``: the reading of the last sample before the window, held.
+* ``stuck``: the reading of the last sample before the window, held;
+* ``reset`` (signal ``ecu``): the ECU resets. Through the window it is booting: no step runs, the steer
+  actuator takes the driver's command and the motors no yaw moment; at its end the step starts from the
+  state ``evstab_init`` sets (the filter and the law from their initial state at speed, the guard with no
+  last good values), as the exported C after a watchdog or brown-out reset.
 
 :func:`single_faults` is the set every ECU input meets in ``studies/firmware_faults.py``.
 """
@@ -24,7 +28,9 @@ from evstab.plants.errors import SettingsError
 
 from .firmware.ecu import INPUTS
 
-KINDS = ("nan", "inf", "value", "offset", "scale", "stuck")
+KINDS = ("nan", "inf", "value", "offset", "scale", "stuck", "reset")
+ECU = "ecu"
+"""The signal a ``reset`` names: the ECU itself."""
 OFF = 1e30
 """The window of no fault: it opens at 1e30 s (a finite number: the kernels compare it with the clock)."""
 
@@ -40,25 +46,30 @@ class EcuFault:
     value: float = 0.0
 
     def __post_init__(self):
-        if self.signal not in INPUTS:
-            raise SettingsError(f"fault signal '{self.signal}' is not an ECU input; known: {', '.join(INPUTS)}")
         if self.kind not in KINDS:
             raise SettingsError(f"fault kind '{self.kind}' unknown; known: {', '.join(KINDS)}")
+        if (self.kind == "reset") != (self.signal == ECU):
+            raise SettingsError(f"a reset names the signal '{ECU}' and only a reset does; got kind '{self.kind}' "
+                                f"on '{self.signal}'")
+        if self.signal not in INPUTS and self.signal != ECU:
+            raise SettingsError(f"fault signal '{self.signal}' is not an ECU input; known: {', '.join(INPUTS)}, "
+                                f"or '{ECU}' for a reset")
         if not (np.isfinite(self.start) and np.isfinite(self.end) and self.end > self.start >= 0):
             raise SettingsError(f"fault window must be 0 <= start < end, finite; got [{self.start}, {self.end})")
 
     @property
     def label(self) -> str:
-        what = {"nan": "NaN", "inf": "+Inf", "stuck": "stuck"}.get(self.kind, f"{self.kind} {self.value:g}")
+        what = {"nan": "NaN", "inf": "+Inf", "stuck": "stuck", "reset": "reset"}.get(self.kind,
+                                                                                    f"{self.kind} {self.value:g}")
         return f"{self.signal} {what}, {1000 * (self.end - self.start):.0f} ms"
 
 
 def fault_parameters(fault: EcuFault | None) -> list[float]:
-    """The loop's run-time fault parameters (:data:`toolkit.closed_loop.FAULT_PARAMS` per input, after the
-    window) of ``fault``; None: no fault."""
+    """The loop's run-time fault parameters of ``fault`` (None: no fault): the window, 1 for a reset, then
+    :data:`toolkit.closed_loop.FAULT_PARAMS` per input."""
     from .closed_loop import FAULT_PARAMS
     start, end = (OFF, OFF) if fault is None else (fault.start, fault.end)
-    out = [float(start), float(end)]
+    out = [float(start), float(end), float(fault is not None and fault.kind == "reset")]
     for name in INPUTS:
         p = {"set": 0.0, "value": 0.0, "add": 0.0, "gain": 1.0, "hold": 0.0}
         if fault is not None and name == fault.signal:

@@ -91,16 +91,24 @@ class LoopEcu:
         return np.zeros(0) if self.ecu is None else np.array([c.value for c in self.ecu.calibration()])
 
     def initial_state(self) -> np.ndarray:
+        return np.asarray(self.start_state(self.calibration_values()), float).reshape(-1)
+
+    def start_state(self, cal, o=NUMPY):
+        """The state at power-up (``evstab_init``'s) with calibration ``cal`` (numbers or symbols): the filter's
+        initial state, the law's and the supervisor's (:func:`control_start`: the supervisor starts from a
+        calibration), the guard's."""
         ne, nc = self.sizes
-        lay = self.layout
-        z = lay.zeros()
+        if self.kind == "driver":
+            return np.zeros(0)
+        parts = []
         if ne:
-            z[lay.slot("filter")] = kal_mod.initial_state(self.ecu.filter, 0.0, 0.0)
-        if self.kind not in ("driver", "yaw-pi"):
-            z[lay.slot("control")] = np.concatenate([control_start(self.ecu), guard_mod.initial_state()])
-        elif self.kind == "yaw-pi":
-            z[lay.slot("control")][-guard_mod.STATE.size:] = guard_mod.initial_state()
-        return z
+            parts.append(kal_mod.initial_state(self.ecu.filter, 0.0, 0.0))
+        if self.kind == "yaw-pi":
+            parts.append(np.zeros(nc - guard_mod.STATE.size))
+        else:
+            parts.append(control_start(self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))]), o))
+        parts.append(guard_mod.initial_state())
+        return o.concat(parts)
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
         """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
@@ -144,7 +152,7 @@ class LoopEcu:
                                  beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, mu_est=g["mu"],
                                  fault_word=zero, bad_samples=zero)
         else:
-            z_ctl_n, y = ecu_control(d, z_ctl, u, est, o)
+            z_ctl_n, y = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
                 ys = ECU_OUTPUTS.as_dict(y)
                 ys["steer_cmd"] = g["steer_cmd_driver"]

@@ -177,6 +177,13 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     z_ecu = z[spec.state_layout.slot("ecu")]  # a view: writing it fills z
     z_ecu[lay.slot("P")] = P_post.ravel(order="F")
     z_ecu[lay.index("init")] = 1.0
+    # an ECU that has been running (the first period is a start, which restarts the law): its guard past
+    # it, with the equilibrium's inputs as its last good values (straight running: all 0 but the speed)
+    from .firmware import guard as guard_mod
+    ne, nc = spec.ecu.sizes
+    g0 = ne + nc - guard_mod.STATE.size
+    z_ecu[g0 + guard_mod.STATE.index("started")] = 1.0
+    z_ecu[g0 + guard_mod.STATE.index("last_speed")] = speed
     U = INPUTS.zeros(r)
     col = INPUTS.columns(U)  # views
     col["speed_ref"][:], col["drive_on"][:] = speed, 1.0

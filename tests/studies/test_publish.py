@@ -32,6 +32,9 @@ def test_every_results_table_is_a_block_with_a_producer():
         if b.study is not None:
             src = Path(importlib.import_module(f"evstab.studies.{b.study}").__file__).read_text()
             assert f'"{name}"' in src, f"{b.study} does not write {name}"
+        elif b.command.startswith("python -m evstab.toolkit."):  # a toolkit module's own report
+            src = Path(importlib.import_module(b.command.split()[2]).__file__).read_text()
+            assert f'"{name}"' in src, f"{b.command} does not write {name}"
         elif b.command.startswith("python benchmarks/"):
             script = ROOT / b.command.split()[1]
             assert script.is_file() and "--md" in script.read_text(), b.command

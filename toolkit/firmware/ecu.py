@@ -339,24 +339,43 @@ def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True, movi
     return z_est_n, est
 
 
-def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
+FRESH_LAG = 1e3
+"""[s] The step a fresh start gives the supervisor's lagged states (friction estimate, demand, slip authority;
+:func:`ecu_control`)."""
+
+
+def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     """The controller part of the step: ``(z_ctl, u, estimates) -> (z_ctl_next, y)``, ``y`` per
     :data:`OUTPUTS` (the estimates are passed through to it). ``z_ctl`` is the law's state
     (:data:`controllers.two_dof.STATE`) then the supervisor's (:data:`controllers.supervisor.STATE`):
-    friction estimate, activation, authority (see :mod:`controllers.supervisor`)."""
+    friction estimate, activation, authority (see :mod:`controllers.supervisor`).
+
+    ``fresh`` 1 on the period the law (re)starts (:func:`restart`; the first period after ``evstab_init``):
+    its lagged references, the supervisor's lagged demand, its friction estimate and the slip control's
+    authority start at their targets for that period's driver steer, speed, lateral acceleration and wheel
+    speeds, so that a start at speed in a turn is read neither as a yaw-rate error of the whole turn, nor as
+    a road of ``mu_max``, nor as rear wheels that do not slip."""
     g = INPUTS.as_dict(u)
     c = d.controller
     parts = CONTROL_STATE.unpack(z_ctl)
     z_law, z_sup = parts.controller, parts.supervisor
-    law_st, sup_st = ctl_mod.STATE.unpack(z_law), sup_mod.STATE.unpack(z_sup)
+    sup_st = sup_mod.STATE.unpack(z_sup)
     vm = o.fmax(g["speed"], c.min_speed)
     _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
+    # on a fresh start the lagged demand and the friction estimate go to their targets at once (a step of
+    # FRESH_LAG s, far beyond their time constants): the friction the car is using now, not mu_max
     mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"], gamma_lin,
-                                                    g["dt"], o)
+                                                    o.if_else(fresh > 0.5, FRESH_LAG, g["dt"]), o)
     mu_ref = o.fmin(mu_est, g["mu"])
     # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
     # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
     mu_ref = o.fmin(mu_ref, (o.fabs(g["ay"]) * (1.0 + c.ay_headroom_share) + c.ay_headroom) / (c.friction_margin * G))
+    law0 = ctl_mod.STATE.as_dict(z_law)
+    beta_ss, gamma_ss, _ = reference(c, vm, g["steer_cmd_driver"], mu_ref, o)  # the law's own targets
+    law0["beta_ref"] = o.if_else(fresh > 0.5, beta_ss, law0["beta_ref"])
+    law0["yaw_rate_ref"] = o.if_else(fresh > 0.5, gamma_ss, law0["yaw_rate_ref"])
+    z_law = ctl_mod.STATE.pack(law0, o)
+    law_st = ctl_mod.STATE.unpack(z_law)
     steer_flag = o.fmax(g["steer_limited"], sup_st.steer_saturated)
     nz_flag = o.fmax(g["yaw_moment_limited"], sup_st.yaw_moment_saturated)
     sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
@@ -370,8 +389,11 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY):
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
         c, z_sup, g["speed"], law_st.yaw_rate_ref - est["yaw_rate"], est["beta"], est["beta_std"], use,
         g["steer_cmd_driver"], law.steer, law.yaw_moment, nz_limit, g["dt"], o, beta_rate=beta_rate)
+    # the slip control's authority goes to its target at once on a fresh start too (its growth term, with no
+    # lag yet, reads the whole slip as growth: the cautious side)
     k_slip, slip_lag = sup_mod.slip_authority(c, sup_st.slip_authority, sup_st.slip_lag, g["speed"],
-                                              g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius, g["dt"], o)
+                                              g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius,
+                                              o.if_else(fresh > 0.5, FRESH_LAG, g["dt"]), o)
     nz_cmd = nz_cmd * k_slip
     sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag)
     # the law's integrators run only while it has authority
@@ -474,10 +496,10 @@ def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
     lay = d.layout
     ctl = lay.span("controller", "supervisor")
     zg = z[lay.slot("guard")]
-    z_est, z_ctl, broken = restart(z[filter_part(lay)], z[ctl], zg, kalman.initial_state(d.filter, 0.0, 0.0),
-                                   control_start(d, o), o)
+    z_est, z_ctl, broken = restart(z[filter_part(lay)], z[ctl], zg,
+                                   kalman.initial_state(d.filter, 0.0, 0.0), control_start(d, o), o)
     z_est_n, est = ecu_estimate(d, z_est, u, o, with_course, moving)
-    z_ctl_n, out = ecu_control(d, z_ctl, u, est, o)
+    z_ctl_n, out = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
     return o.concat([z_est_n, z_ctl_n, zg]), with_authority(out, u, zg, broken, o)
 
 

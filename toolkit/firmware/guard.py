@@ -219,7 +219,8 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     now = tree([nxt[f"fault_{name}"] for name in DEGRADING], o.fmax)
     step = dt_c / s.ramp_time
     restart = was * (1.0 - now) * float(s.restart)
-    nxt["restart"] = restart
+    # the first period after evstab_init is a start too: an ECU reset at speed restarts as a recovery does
+    nxt["restart"] = o.fmax(restart, first)
     nxt["hold"] = o.if_else(restart > 0.5, s.restart_hold, o.fmax(st["hold"] - dt_c, 0.0))
     down = o.fmax(now, nxt["hold"] > 0.25 * dt_nominal)  # the quarter period: float32 and float64 alike
     nxt["authority"] = o.fmin(o.fmax(st["authority"] + o.if_else(down > 0.5, -step, step), 0.0), 1.0)
