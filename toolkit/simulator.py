@@ -37,6 +37,9 @@ class RolloverError(SimulationError):
         super().__init__(message)
         self.t = t
 
+    def __reduce__(self):  # pickled with its time (a worker process's run that rolled over reaches its caller)
+        return type(self), (str(self), self.t)
+
 
 ROLLOVER = np.deg2rad(45.0)
 """Body roll [rad] past which a multi-body car has rolled over: on two wheels and beyond its

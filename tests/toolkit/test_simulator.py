@@ -208,3 +208,13 @@ def test_the_run_figure_shows_the_ecu_with_a_controller(tmp_path):
     assert panels["yaw moment [N m]"] == ["ECU command", "applied (actuators)"]
     alone = plot_run(simulate(p, "two-track", man), tmp_path / "alone.png", man)
     assert len(alone) == 6 and alone["front road-wheel angle [deg]"] == ["steer command"]
+
+
+def test_a_rollover_error_crosses_a_process_boundary():
+    """A worker process's run that rolled over (studies run cases in a process pool) reaches the caller as the
+    same error with its time: the exception pickles with both of its arguments."""
+    import pickle
+
+    from evstab.toolkit.simulator import RolloverError
+    e = pickle.loads(pickle.dumps(RolloverError("commonroad-mb:1 rolled over at t = 2.345 s", 2.345)))
+    assert isinstance(e, RolloverError) and e.t == 2.345 and str(e) == "commonroad-mb:1 rolled over at t = 2.345 s"

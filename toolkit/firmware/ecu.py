@@ -52,7 +52,8 @@ INPUTS = Layout("ECU inputs", [
     Signal("yaw_rate", "rad/s", "gyro yaw rate, + counter-clockwise seen from above"),
     Signal("ay", "m/s^2", "lateral acceleration, + left"),
     Signal("gps_valid", "-", "1 when a new GPS course fix arrived in this period, else 0", ctype="int"),
-    Signal("gps_course", "rad", "GPS course over ground, same sense and reference as yaw, continuous"),
+    Signal("gps_course", "rad", "GPS course over ground, same sense and reference as yaw, wrapped or continuous "
+           "(the step wraps its innovation; in float32 give it wrapped: a growing angle loses resolution)"),
     Signal("gps_speed", "m/s", "GPS ground speed (not used by this design; kept for logging)"),
     Signal("gps_hdop", "-", "horizontal dilution of precision of the fix"),
     Signal("gps_sats", "-", "satellites used in the fix (fewer than 4: the fix is not used)", ctype="int"),
@@ -67,7 +68,7 @@ INPUTS = Layout("ECU inputs", [
 OUTPUTS = Layout("ECU outputs", [
     Signal("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
     Signal("yaw_rate", "rad/s", "estimated yaw rate"),
-    Signal("yaw", "rad", "estimated yaw angle, continuous"),
+    Signal("yaw", "rad", "estimated yaw angle, wrapped to (-pi, pi]"),
     Signal("d1", "rad/s", "disturbance on the sideslip equation (0 without disturbance states)"),
     Signal("d2", "rad/s^2", "disturbance on the yaw-rate equation (0 without disturbance states)"),
     Signal("gyro_bias", "rad/s", "estimated gyro bias (0 without a bias state)"),

@@ -50,7 +50,7 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
                        "yaw moment), speed-scheduled by table interpolation.",
         "conventions": "SI units, angles in rad; ISO 8855 axes (x forward, y left, z up); yaw, yaw rate, sideslip, "
                        "steer and course positive counter-clockwise seen from above; steer is the front road-wheel "
-                       "angle; course = yaw + sideslip at the antenna, continuous (unwrapped)",
+                       "angle; course = yaw + sideslip at the antenna, wrapped or continuous; yaw wrapped to (-pi, pi]",
         "evstab_version": provenance.get("evstab_version", "unknown"),
         "vehicle": {"name": p.name, "params_digest": p.digest(), "nominal_params": p.to_dict()},
         "control_period_s": f.dt_nominal,
