@@ -405,8 +405,9 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         # every use of it is a wrapped course innovation, so nothing else changes (one step moves it by
         # less than 2 pi, so one shift is enough)
         iy_ = d.index("yaw")
-        ey_ = _col(np.eye(n)[iy_], o)
-        x = o.if_else(x[iy_] > np.pi, x - ey_ * (2.0 * np.pi), o.if_else(x[iy_] <= -np.pi, x + ey_ * (2.0 * np.pi), x))
+        yaw = x[iy_]
+        yaw = o.if_else(yaw > np.pi, yaw - 2.0 * np.pi, o.if_else(yaw <= -np.pi, yaw + 2.0 * np.pi, yaw))
+        x = o.concat([x[:iy_], o.stack([yaw]), x[iy_ + 1:]])  # the heading's element alone
     if nb > 0:
         buf_next = o.concat([pred_now, buf[0:nb - 1]]) if nb > 1 else o.stack([pred_now])
     if watches_bias(d):

@@ -72,11 +72,12 @@ def cppcheck() -> str | None:
     return shutil.which("cppcheck")
 
 
-def _run(cmd, cwd=None) -> str:
-    out = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, cwd=cwd)
+def _run(argv, cwd=None) -> str:
+    argv = [str(a) for a in argv]
+    out = subprocess.run(argv, capture_output=True, text=True, cwd=cwd)
     if out.returncode != 0:
-        raise McuError(f"{Path(str(cmd[0])).name} failed ({out.returncode}): {' '.join(map(str, cmd))}\n"
-                       f"{(out.stderr or out.stdout)[-3000:]}")
+        tool = Path(argv[0]).name
+        raise McuError(f"{tool} failed ({out.returncode}): {' '.join(argv)}\n{(out.stderr or out.stdout)[-3000:]}")
     return out.stdout + out.stderr
 
 
