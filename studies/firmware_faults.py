@@ -27,7 +27,8 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
 Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
 over the straight roads and over the lane changes), ``firmware_faults_summary.md`` (counts),
 ``firmware_faults_baseline.md`` (each lane change's peak sideslip, car alone and controlled without a fault),
-``firmware_faults_reset.md`` (the resets).
+``firmware_faults_reset.md`` (the resets), ``firmware_faults_recovery.md`` (:func:`recovery_runs`: the guard's
+recovery settings at the limit).
 
 Run: ``python -m evstab.studies.firmware_faults OUT_DIR [--quick]`` (quick: 60 km/h straight road and the
 80 km/h lane change, seed 0, the NaN and spike faults only).
@@ -154,6 +155,39 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
     return rows
 
 
+RECOVERY_VARIANTS = (("recovery 0.2 s (the default)", {}), ("recovery 1 s", {"recover_time": 1.0}),
+                     ("recovery 0.2 s, authority held 2.5 s after the restart", {"restart_hold": 2.5}))
+RECOVERY_SIGNALS = ("yaw_rate", "speed", "steer_cmd_driver")
+
+
+def recovery_runs(p, quick: bool = False) -> list[list]:
+    """The guard's recovery settings at the limit: NaN for 0.5 s on the yaw rate, the speed and the driver's
+    steer from the first steer of ISO 3888-1 at 100 km/h on mu 0.5 (seeds 0 and 1), with the default
+    recovery (0.2 s), a 1 s one, and the authority held for 2.5 s after the restart; the peak sideslip's
+    range over the six runs of each. One table row per variant."""
+    import dataclasses
+
+    from evstab.toolkit.loop_ecu import loop_ecu
+    ecu = loop_ecu("two-dof", p).ecu
+    man = make_maneuver("iso3888-1", p, 100 / 3.6)
+    road = Disturbances(friction=Friction(mu=0.5))
+    rows = []
+    for label, settings in RECOVERY_VARIANTS[:1] if quick else RECOVERY_VARIANTS:
+        d = dataclasses.replace(ecu, guard=dataclasses.replace(ecu.guard, **settings))
+        peaks, alone_peaks = [], []
+        for seed in SEEDS[:1] if quick else SEEDS[:2]:
+            alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
+            alone_peaks.append(float(np.degrees(np.nanmax(np.abs(alone.truth["beta"])))))
+            start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
+            for signal in RECOVERY_SIGNALS:
+                r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=d,
+                             ecu_fault=EcuFault(signal, "nan", start, start + 0.5))
+                peaks.append(float(np.degrees(np.nanmax(np.abs(r.truth["beta"])))))
+        rows.append([label, f"{min(peaks):.2f}-{max(peaks):.2f}", f"{min(alone_peaks):.2f}-{max(alone_peaks):.2f}"])
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main(out, quick: bool = False) -> list[dict]:
     out = out_dir(out)
     p = load_vehicle("compact-ev")
@@ -191,6 +225,8 @@ def main(out, quick: bool = False) -> list[dict]:
                        "as_without_fault": no_harm(peak, peak_clean)}
                 rows.append(row)
                 print(row, flush=True)
+    write_markdown(out / "firmware_faults_recovery.md",
+                   ["guard setting", "peak sideslip [deg]", "the car alone [deg]"], recovery_runs(p, quick))
     resets = reset_runs(p, quick)
     write_markdown(out / "firmware_faults_reset.md",
                    ["case", "seed", "reset at [s]", "law back after the boot [s]", "largest steer difference [deg]",
