@@ -40,7 +40,7 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import make_maneuver, steer_for_lateral_acceleration
 from evstab.studies._common import out_dir, write_markdown, write_table
 from evstab.studies.control_mb_fmvss126 import CAR_NAMES, wrong_nominal
-from evstab.studies.firmware_faults import no_harm
+from evstab.studies.firmware_faults import no_harm, peak_beta_deg
 from evstab.toolkit.ecu_faults import ECU, OFFSETS, EcuFault
 from evstab.toolkit.loop_ecu import loop_ecu
 from evstab.toolkit.simulator import RolloverError, simulate
@@ -126,7 +126,7 @@ def _simulate(p, plant, man, road, seed, **kw):
 
 def _peak(r) -> float:
     """The run's peak sideslip [deg]; a car that rolled over: infinite."""
-    return np.inf if r is None else float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+    return np.inf if r is None else peak_beta_deg(r)
 
 
 def _no_worse(peak: float, reference: float) -> bool:

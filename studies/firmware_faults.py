@@ -68,6 +68,11 @@ BACK_YAW_MOMENT = 50.0
 BACK_WITHIN_S = 1.0
 
 
+def peak_beta_deg(r) -> float:
+    """A run's peak sideslip [deg] (NaN samples, after a run stopped being finite, left out)."""
+    return float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+
+
 def straight_metrics(r, fault) -> dict:
     c = r.commands
     added = np.degrees(np.abs(c["steer_cmd"] - c["steer_driver"]))
@@ -142,12 +147,12 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
             c = r.commands
             steer0, nz0 = shadow_commands(ecu, r)
             back, ds, dn = back_after(r.t, c["steer_cmd"], steer0, c["yaw_moment_cmd"], nz0, f.end)
-            peak = float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
-            peak_alone = float(np.degrees(np.nanmax(np.abs(alone.truth["beta"]))))
+            peak = peak_beta_deg(r)
+            peak_alone = peak_beta_deg(alone)
             row = {"case": f"reset at {RESET_KMH:.0f} km/h: {name}", "seed": seed, "reset_at_s": start,
                    "finite": bool(np.isfinite(back)), "back_after_s": back, "steer_diff_deg": ds,
                    "yaw_moment_diff_nm": dn, "peak_beta_deg": peak,
-                   "no_reset_peak_beta_deg": float(np.degrees(np.nanmax(np.abs(clean.truth["beta"])))),
+                   "no_reset_peak_beta_deg": peak_beta_deg(clean),
                    "alone_peak_beta_deg": peak_alone, "no_harm": no_harm(peak, peak_alone),
                    "back_in_time": bool(back <= BACK_WITHIN_S)}
             rows.append(row)
@@ -177,12 +182,12 @@ def recovery_runs(p, quick: bool = False) -> list[list]:
         peaks, alone_peaks = [], []
         for seed in SEEDS[:1] if quick else SEEDS[:2]:
             alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
-            alone_peaks.append(float(np.degrees(np.nanmax(np.abs(alone.truth["beta"])))))
+            alone_peaks.append(peak_beta_deg(alone))
             start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
             for signal in RECOVERY_SIGNALS:
                 r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=d,
                              ecu_fault=EcuFault(signal, "nan", start, start + 0.5))
-                peaks.append(float(np.degrees(np.nanmax(np.abs(r.truth["beta"])))))
+                peaks.append(peak_beta_deg(r))
         rows.append([label, f"{min(peaks):.2f}-{max(peaks):.2f}", f"{min(alone_peaks):.2f}-{max(alone_peaks):.2f}"])
         print(rows[-1], flush=True)
     return rows
@@ -208,15 +213,15 @@ def main(out, quick: bool = False) -> list[dict]:
         road = Disturbances(friction=Friction(mu=mu))
         for seed in SEEDS[:1] if quick else SEEDS:
             alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
-            peak_alone = float(np.degrees(np.nanmax(np.abs(alone.truth["beta"]))))
+            peak_alone = peak_beta_deg(alone)
             clean = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof")
-            peak_clean = float(np.degrees(np.nanmax(np.abs(clean.truth["beta"]))))
+            peak_clean = peak_beta_deg(clean)
             start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
             for f in single_faults(start):
                 if kinds and f.kind not in kinds:
                     continue
                 r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", ecu_fault=f)
-                peak = float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+                peak = peak_beta_deg(r)
                 finite = bool(np.all(np.isfinite(r.commands["steer_cmd"])) and
                               np.all(np.isfinite(r.commands["yaw_moment_cmd"])))
                 row = {"case": f"ISO 3888-1 {kmh:.0f} km/h mu {mu:g}, seed {seed}", "signal": f.signal, "fault": f.label,

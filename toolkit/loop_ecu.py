@@ -74,6 +74,12 @@ class LoopEcu:
         return ne, nc + guard_mod.STATE.size
 
     @property
+    def guard_slice(self) -> slice:
+        """Where the input guard's state sits in this ECU's state: the end of the controller's part."""
+        ne, nc = self.sizes
+        return slice(ne + nc - guard_mod.STATE.size, ne + nc)
+
+    @property
     def n_state(self) -> int:
         return sum(self.sizes)
 
@@ -106,18 +112,22 @@ class LoopEcu:
         if self.kind == "yaw-pi":
             parts.append(np.zeros(nc - guard_mod.STATE.size))
         else:
-            parts.append(control_start(self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))]), o))
+            parts.append(control_start(self._bound(cal), o))
         parts.append(guard_mod.initial_state())
         return o.concat(parts)
+
+    def _bound(self, cal) -> EcuDesign:
+        """The ECU design with calibration values ``cal`` (numbers or symbols)."""
+        return self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
         """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;
         ``cal`` the calibration values (numbers or symbols); ``truth`` is read by ``two-dof-true`` only."""
-        d = self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
+        d = self._bound(cal)
         # the input guard first (toolkit.firmware.guard), as in the ECU step
-        ne, nc = self.sizes
-        ng = guard_mod.STATE.size
-        zg, raw = z[ne + nc - ng:ne + nc], ECU_INPUTS.as_dict(u)
+        ne = self.sizes[0]
+        gs = self.guard_slice
+        zg, raw = z[gs], ECU_INPUTS.as_dict(u)
         # the loop's calibration is a sweep's run-time input, which the design explores beyond the A2L's limits:
         # it is not checked here (the exported step checks its own, toolkit.firmware.ecu.ecu_guard)
         zg, clean = guard_mod.guard(d.guard, zg, raw, d.filter.dt_nominal, d.wheel_radius, o)
@@ -125,9 +135,9 @@ class LoopEcu:
         g = ECU_INPUTS.as_dict(u)
         zero = 0.0 * g["dt"]
         z_f = z[self.layout.slot("filter")] if ne else None
-        z_c = z[ne:ne + nc - ng]
+        z_c = z[ne:gs.start]
         # what a restart sets: the calibrated initial state (the supervisor starts from mu_max, a calibration)
-        z_c0 = np.zeros(nc - ng) if self.kind == "yaw-pi" else control_start(d, o)
+        z_c0 = np.zeros(gs.start - ne) if self.kind == "yaw-pi" else control_start(d, o)
         if ne:
             z_f, z_c, broken = restart(z_f, z_c, zg, kal_mod.initial_state(d.filter, 0.0, 0.0), z_c0, o)
         else:

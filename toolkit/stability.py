@@ -180,10 +180,9 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     # an ECU that has been running (the first period is a start, which restarts the law): its guard past
     # it, with the equilibrium's inputs as its last good values (straight running: all 0 but the speed)
     from .firmware import guard as guard_mod
-    ne, nc = spec.ecu.sizes
-    g0 = ne + nc - guard_mod.STATE.size
-    z_ecu[g0 + guard_mod.STATE.index("started")] = 1.0
-    z_ecu[g0 + guard_mod.STATE.index("last_speed")] = speed
+    z_guard = z_ecu[spec.ecu.guard_slice]  # a view
+    z_guard[guard_mod.STATE.index("started")] = 1.0
+    z_guard[guard_mod.STATE.index("last_speed")] = speed
     U = INPUTS.zeros(r)
     col = INPUTS.columns(U)  # views
     col["speed_ref"][:], col["drive_on"][:] = speed, 1.0

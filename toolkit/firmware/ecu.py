@@ -363,10 +363,11 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     sup_st = sup_mod.STATE.unpack(z_sup)
     vm = o.fmax(g["speed"], c.min_speed)
     _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
-    # on a fresh start the lagged demand and the friction estimate go to their targets at once (a step of
-    # FRESH_LAG s, far beyond their time constants): the friction the car is using now, not mu_max
+    # on a fresh start the supervisor's lagged states go to their targets at once (a step of FRESH_LAG s, far
+    # beyond their time constants): the friction the car is using now, not mu_max
+    lag_dt = o.if_else(fresh > 0.5, FRESH_LAG, g["dt"])
     mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"], gamma_lin,
-                                                    o.if_else(fresh > 0.5, FRESH_LAG, g["dt"]), o)
+                                                    lag_dt, o)
     mu_ref = o.fmin(mu_est, g["mu"])
     # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
     # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
@@ -394,7 +395,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     # lag yet, reads the whole slip as growth: the cautious side)
     k_slip, slip_lag = sup_mod.slip_authority(c, sup_st.slip_authority, sup_st.slip_lag, g["speed"],
                                               g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius,
-                                              o.if_else(fresh > 0.5, FRESH_LAG, g["dt"]), o)
+                                              lag_dt, o)
     nz_cmd = nz_cmd * k_slip
     sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag)
     # the law's integrators run only while it has authority
