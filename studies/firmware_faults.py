@@ -36,6 +36,7 @@ Run: ``python -m evstab.studies.firmware_faults OUT_DIR [--quick]`` (quick: 60 k
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import numpy as np
@@ -47,6 +48,7 @@ from evstab.studies._common import out_dir, write_markdown, write_table
 from evstab.toolkit.ecu_faults import EcuFault, single_faults
 from evstab.toolkit.envelope import HARM_FACTOR, HARM_MARGIN_DEG
 from evstab.toolkit.firmware.guard import FAULT_BITS, GuardSettings
+from evstab.toolkit.loop_ecu import loop_ecu
 from evstab.toolkit.simulator import simulate
 
 STEER_MAX_DEG = 0.5
@@ -71,6 +73,11 @@ BACK_WITHIN_S = 1.0
 def peak_beta_deg(r) -> float:
     """A run's peak sideslip [deg] (NaN samples, after a run stopped being finite, left out)."""
     return float(np.degrees(np.nanmax(np.abs(r.truth["beta"]))))
+
+
+def first_steer_s(r) -> float:
+    """[s] The first instant a run's road-wheel angle passes 0.5 deg: where a manoeuvre's faults are placed."""
+    return float(r.t[np.argmax(np.abs(r.commands["steer"]) > np.radians(0.5))])
 
 
 def straight_metrics(r, fault) -> dict:
@@ -127,7 +134,6 @@ def shadow_commands(ecu, r) -> tuple[np.ndarray, np.ndarray]:
 
 def reset_runs(p, quick: bool = False) -> list[dict]:
     """The ECU resets at 100 km/h (see the module): one row per case and seed."""
-    from evstab.toolkit.loop_ecu import loop_ecu
     ecu = loop_ecu("two-dof", p).ecu
     v = RESET_KMH / 3.6
     cases = [(f"left turn {ay:g} m/s^2, mu 1", constant_radius(v, v * v / ay, laps=0.25, lead_in=60.0), Disturbances(),
@@ -139,8 +145,7 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
         for seed in SEEDS[:1] if quick else SEEDS:
             alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
             clean = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=ecu)
-            start = at if at is not None else float(
-                alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))]) + 0.5
+            start = at if at is not None else first_steer_s(alone) + 0.5
             f = EcuFault("ecu", "reset", start, start + RESET_BOOT_S)
             r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=ecu,
                          ecu_fault=f)
@@ -170,9 +175,6 @@ def recovery_runs(p, quick: bool = False) -> list[list]:
     steer from the first steer of ISO 3888-1 at 100 km/h on mu 0.5 (seeds 0 and 1), with the default
     recovery (0.2 s), a 1 s one, and the authority held for 2.5 s after the restart; the peak sideslip's
     range over the six runs of each. One table row per variant."""
-    import dataclasses
-
-    from evstab.toolkit.loop_ecu import loop_ecu
     ecu = loop_ecu("two-dof", p).ecu
     man = make_maneuver("iso3888-1", p, 100 / 3.6)
     road = Disturbances(friction=Friction(mu=0.5))
@@ -183,7 +185,7 @@ def recovery_runs(p, quick: bool = False) -> list[list]:
         for seed in SEEDS[:1] if quick else SEEDS[:2]:
             alone = simulate(p, "two-track", man, disturbances=road, seed=seed)
             alone_peaks.append(peak_beta_deg(alone))
-            start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
+            start = first_steer_s(alone)
             for signal in RECOVERY_SIGNALS:
                 r = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof", design=d,
                              ecu_fault=EcuFault(signal, "nan", start, start + 0.5))
@@ -216,7 +218,7 @@ def main(out, quick: bool = False) -> list[dict]:
             peak_alone = peak_beta_deg(alone)
             clean = simulate(p, "two-track", man, disturbances=road, seed=seed, controller="two-dof")
             peak_clean = peak_beta_deg(clean)
-            start = float(alone.t[np.argmax(np.abs(alone.commands["steer"]) > np.radians(0.5))])
+            start = first_steer_s(alone)
             for f in single_faults(start):
                 if kinds and f.kind not in kinds:
                     continue
