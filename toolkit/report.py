@@ -131,6 +131,24 @@ def param_unit(name: str) -> str:
     return m.group(1) if m else "-"
 
 
+CASE_HEADERS = ("front stiffness x [-]", "rear stiffness x [-]", "mu [-]", "mass x [-]", "yaw inertia x [-]",
+                "speed [km/h]", "GPS rate [Hz]", "GPS latency [s]")
+"""The sweep case columns ``cf_scale, cr_scale, mu, mass_scale, inertia_scale, speed_kmh, gps_rate,
+gps_latency`` as the report's tables head them (``x``: a factor on the nominal value)."""
+
+
+def cost_sentence() -> str:
+    """What the sweep's ``cost`` measures (:func:`toolkit.sweep.cost_of`), with the scales the code uses."""
+    from .sweep import B_SCALE, E_SCALE, R_SCALE, U_WEIGHT
+    return ("Cost of a case (dimensionless; the tuning minimises its worst case): the mean over the standard "
+            "manoeuvres of the mean-square yaw-rate tracking error over "
+            f"({np.degrees(R_SCALE):g} deg/s)^2, plus the mean-square sideslip tracking error over "
+            f"({np.degrees(B_SCALE):g} deg)^2, plus the mean-square sideslip estimation error over "
+            f"({np.degrees(E_SCALE):g} deg)^2, plus {U_WEIGHT:g} x the mean-square yaw moment over the square of the largest "
+            "the motors make: a cost of 1 is, for example, a yaw-rate tracking error of "
+            f"{np.degrees(R_SCALE):g} deg/s RMS and nothing else.")
+
+
 def _case_text(r: dict) -> str:
     parts = [f"mu {r['mu']:.2f}", f"{r['speed_kmh']:.0f} km/h"]
     for key, label in (("cf_scale", "front stiffness"), ("cr_scale", "rear stiffness"), ("mass_scale", "mass"),
@@ -338,13 +356,15 @@ def build(data: dict) -> Doc:
             else:
                 ax.axvline(0, color="k", lw=0.6)
             ax.set_title(f"{dn}")
-            ax.set_xlabel("Re")
-            ax.set_ylabel("Im")
+            # s-plane poles: decay rate and angular frequency; z-plane: eigenvalues over one GPS period
+            ax.set_xlabel("Re s [1/s]" if plane == "s" else "Re z [-]")
+            ax.set_ylabel("Im s [rad/s]" if plane == "s" else "Im z [-]")
             ax.grid(alpha=0.3)
         fig.colorbar(sc, ax=axes[0].tolist(), label="speed [km/h]")
         D.figure(f"poles_{plane}", fig, title)
 
     D.h(2, "Model-error sweep")
+    D.p(cost_sentence())
     grid = [r for r in sweep if r["group"] in ("stiffness",)]
     cfs = sorted({r["cf_scale"] for r in grid})
     crs = sorted({r["cr_scale"] for r in grid})
@@ -370,14 +390,14 @@ def build(data: dict) -> Doc:
                 else:
                     im = ax.imshow(M, origin="lower", cmap="magma_r", aspect="auto", norm=norm)
                     ax.set_title(f"{dn}: sideslip estimation RMS [deg]")
-                    fig.colorbar(im, ax=ax)
+                    fig.colorbar(im, ax=ax, label="sideslip estimation RMS [deg]")
                     for (yy, xx), v in np.ndenumerate(M):
                         ax.text(xx, yy, f"{v:.2g}", ha="center", va="center", fontsize=7, color="k",
                                 path_effects=[patheffects.withStroke(linewidth=2, foreground="w")])
                 ax.set_xticks(range(len(cfs)), [f"{(c - 1) * 100:+.0f}%" for c in cfs])
                 ax.set_yticks(range(len(crs)), [f"{(c - 1) * 100:+.0f}%" for c in crs])
-                ax.set_xlabel("front cornering stiffness error")
-                ax.set_ylabel("rear cornering stiffness error")
+                ax.set_xlabel("front cornering stiffness error [%]")
+                ax.set_ylabel("rear cornering stiffness error [%]")
         fig.tight_layout()
         D.figure("sweep_heatmaps", fig, "Stiffness grid at 80 km/h, mu 1: stability verdict and sideslip "
                                         "estimation RMS (one colour scale for both designs)")
@@ -395,8 +415,8 @@ def build(data: dict) -> Doc:
         ax.loglog(xs, ys, "o", ms=4, alpha=0.7)
         lo, hi = min(xs.min(), ys.min()), max(xs.max(), ys.max())
         ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
-        ax.set_xlabel("paper design cost")
-        ax.set_ylabel("tuned design cost")
+        ax.set_xlabel("paper design cost [-]")
+        ax.set_ylabel("tuned design cost [-]")
         ax.grid(alpha=0.3, which="both")
         D.figure("cost_paper_vs_tuned", fig, "Case by case: below the diagonal the tuned design is better")
         D.h(3, "Tuned vs paper, case by case (the 20 worst cases of the paper design)")
@@ -406,7 +426,9 @@ def build(data: dict) -> Doc:
                   "paper cost": by["paper"][i]["cost"], "tuned cost": by["tuned"][i]["cost"],
                   "paper stable": by["paper"][i]["stable"], "tuned stable": by["tuned"][i]["stable"],
                   "paper beta RMS deg": by["paper"][i]["beta_rms_deg"],
-                  "tuned beta RMS deg": by["tuned"][i]["beta_rms_deg"]} for i in worst])
+                  "tuned beta RMS deg": by["tuned"][i]["beta_rms_deg"]} for i in worst],
+                headers=["case", *CASE_HEADERS, "paper cost [-]", "tuned cost [-]", "paper stable", "tuned stable",
+                         "paper sideslip est. RMS [deg]", "tuned sideslip est. RMS [deg]"])
     D.p("The whole table (one row per case and design) is sweep.csv / sweep.parquet.")
 
     D.h(2, "Time responses of the standard manoeuvres (80 km/h)")

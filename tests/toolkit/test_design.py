@@ -272,6 +272,43 @@ def test_report_numbers_are_the_design_json_numbers(design_dir):
         assert (design_dir / "figures" / f"{name}.png").stat().st_size > 5000
 
 
+def test_every_report_plot_names_its_axes_with_units(design_dir, monkeypatch):
+    """Every plot of the report says what its axes measure, with a unit in brackets: each axis's y label
+    (a colour bar's label), and an x label on it or on a plot below it in the same column (a column of
+    plots shares its time axis). The report's sentence on what the cost measures uses the cost's own
+    scales."""
+    import re
+
+    from evstab.toolkit import report
+    unit = re.compile(r"\[[^\]]+\]")
+    seen = {}
+    figure = report.Doc.figure
+
+    def capture(self, name, fig, caption):
+        seen[name] = [(ax.get_xlabel(), ax.get_ylabel(), hasattr(ax, "_colorbar"), ax.get_position())
+                      for ax in fig.axes]
+        figure(self, name, fig, caption)
+
+    monkeypatch.setattr(report.Doc, "figure", capture)
+    doc = report.build(report.load_outputs(design_dir))
+    assert {"poles_s", "poles_z", "sweep_heatmaps", "responses", "cost_paper_vs_tuned"} <= set(seen)
+    for name, axes in seen.items():
+        plots = [a for a in axes if not a[2]]
+        for xl, yl, colorbar, pos in axes:
+            if colorbar:
+                assert unit.search(yl) or unit.search(xl), (name, "colour bar", xl, yl)
+                continue
+            assert unit.search(yl), (name, yl)
+            below = [a for a in plots if abs(a[3].x0 - pos.x0) < 0.02 and a[3].y0 <= pos.y0 and unit.search(a[0])]
+            assert unit.search(xl) or below, (name, xl)
+    text = doc.markdown()
+    assert report.cost_sentence() in text
+    # the sentence states the scales sweep.cost_of divides by: 1 deg/s, 0.5 deg, 0.5 deg, weight 0.1
+    assert (np.degrees(sw.R_SCALE), np.degrees(sw.B_SCALE), np.degrees(sw.E_SCALE), sw.U_WEIGHT) == \
+        pytest.approx((1.0, 0.5, 0.5, 0.1))
+    assert "over (1 deg/s)^2" in text and "over (0.5 deg)^2" in text and "plus 0.1 x" in text
+
+
 def test_report_command_redraws_the_same_report(design_dir, tmp_path):
     from evstab.toolkit.cli import main
     copy = tmp_path / "copy"
