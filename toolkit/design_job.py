@@ -209,17 +209,39 @@ def analysis_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], speeds=SPEE
     return rows, poles
 
 
+LIMIT_RESPONSE_MU = 0.5
+"""Friction of the response set's limit run: the limit set's step steer (:func:`toolkit.limits.case_maneuver`,
+asking the nominal linear car for ``STEP_SATURATION`` x ``mu g``), where the car alone slides and the
+controller acts."""
+
+
+def response_maneuvers(cfg: sw.SweepConfig, mu: float, speed: float) -> list:
+    """The manoeuvres of the time responses on ``mu``: the standard set, and on :data:`LIMIT_RESPONSE_MU` the
+    limit set's step steer at the same speed, as long as the standard ones."""
+    from . import limits as lm
+    mans = sw.standard_maneuvers(cfg, speed)
+    if mu == LIMIT_RESPONSE_MU:
+        step = lm.case_maneuver(cfg.nominal, lm.LimitCase("step", mu, speed * 3.6))
+        mans.append(dataclasses.replace(step, name="step-steer at the limit", duration=sw.MANEUVER_DURATION))
+    return mans
+
+
 def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: int = 10) -> list[dict]:
-    """Time responses of the standard manoeuvres at 80 km/h on mu 1 and mu 0.45: no control and each design."""
+    """Time responses at 80 km/h: the standard manoeuvres on mu 1 and mu 0.45, and on
+    :data:`LIMIT_RESPONSE_MU` the limit set's step steer, where the controller acts; no control and each
+    design."""
     from .closed_loop import program
     from .simulator import simulate
     rows = []
     prog = program(cfg.spec())
-    for mu in (1.0, 0.45):
+    for mu in (1.0, 0.45, LIMIT_RESPONSE_MU):
         case = sw.Case(-1, mu=mu, group="response")
         true = case.plant_params(cfg.nominal)
         sens = case.sensors(cfg.sensors)
-        for man in sw.standard_maneuvers(cfg, case.speed_kmh / 3.6):
+        mans = response_maneuvers(cfg, mu, case.speed_kmh / 3.6)
+        if mu == LIMIT_RESPONSE_MU:
+            mans = mans[-1:]
+        for man in mans:
             r = simulate(true, cfg.plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=case.seed)
             nan = np.full(len(r.t), np.nan)
             runs = {"no control": (r.t, r.truth["yaw_rate"], r.truth["beta"], nan, nan, r.commands["steer"],

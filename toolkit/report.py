@@ -431,7 +431,7 @@ def build(data: dict) -> Doc:
                          "paper sideslip est. RMS [deg]", "tuned sideslip est. RMS [deg]"])
     D.p("The whole table (one row per case and design) is sweep.csv / sweep.parquet.")
 
-    D.h(2, "Time responses of the standard manoeuvres (80 km/h)")
+    D.h(2, "Time responses (80 km/h): the standard manoeuvres, and a step steer at the limit")
     resp = data["responses"]
     combos = sorted({(r["mu"], r["maneuver"]) for r in resp}, key=lambda c: (-c[0], c[1]))
     fig, axes = plt.subplots(len(combos), 2, figsize=(11, 2.6 * len(combos)), squeeze=False)
@@ -457,6 +457,10 @@ def build(data: dict) -> Doc:
     fig.tight_layout()
     D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design; "
                                "dashed: each design's reference (yaw rate, sideslip)")
+    D.p("Where the controller acts: the peak sideslip of each run and the peak yaw moment each design commands "
+        "(0 N m: the law stayed off and the car drove as without control; the step steer at the limit asks the "
+        "nominal linear car for 1.5 mu g).")
+    D.table(response_peaks(resp), headers=response_peak_headers(resp))
 
     D.h(2, "Provenance")
     pv = doc["provenance"]
@@ -465,6 +469,32 @@ def build(data: dict) -> Doc:
                                                    ("parameter-set hash", veh["params_digest"]),
                                                    ("command", pv["command"]), ("python", pv["python"]))])
     return D
+
+
+def _controllers(resp: list[dict]) -> list[str]:
+    names = sorted({r["controller"] for r in resp})
+    return ["no control"] + [n for n in names if n != "no control"] if "no control" in names else names
+
+
+def response_peaks(resp: list[dict]) -> list[dict]:
+    """One row per response run (friction, manoeuvre): the peak |sideslip| [deg] of each controller and the
+    peak |yaw moment| [N m] each design commanded."""
+    rows = []
+    for mu, man in sorted({(r["mu"], r["maneuver"]) for r in resp}, key=lambda c: (-c[0], c[1])):
+        runs = {c: [r for r in resp if r["mu"] == mu and r["maneuver"] == man and r["controller"] == c]
+                for c in _controllers(resp)}
+        row = {"mu": mu, "maneuver": man}
+        row.update({f"{c} beta": float(np.degrees(max(abs(r["beta"]) for r in rr))) for c, rr in runs.items()})
+        row.update({f"{c} Nz": max(abs(r["yaw_moment"]) for r in rr) for c, rr in runs.items() if c != "no control"})
+        rows.append(row)
+    return rows
+
+
+def response_peak_headers(resp: list[dict]) -> list[str]:
+    """The column headers of :func:`response_peaks`, with units."""
+    cs = _controllers(resp)
+    return ["mu [-]", "manoeuvre", *[f"{c}: peak sideslip [deg]" for c in cs],
+            *[f"{c}: peak yaw moment [N m]" for c in cs if c != "no control"]]
 
 
 def summary_table(doc: dict) -> str:
