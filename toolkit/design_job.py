@@ -216,14 +216,13 @@ controller acts."""
 
 
 def response_maneuvers(cfg: sw.SweepConfig, mu: float, speed: float) -> list:
-    """The manoeuvres of the time responses on ``mu``: the standard set, and on :data:`LIMIT_RESPONSE_MU` the
-    limit set's step steer at the same speed, as long as the standard ones."""
+    """The manoeuvres of the time responses on ``mu``: on :data:`LIMIT_RESPONSE_MU` the limit set's step steer
+    at ``speed``, as long as the standard manoeuvres; on any other friction the standard set."""
+    if mu != LIMIT_RESPONSE_MU:
+        return sw.standard_maneuvers(cfg, speed)
     from . import limits as lm
-    mans = sw.standard_maneuvers(cfg, speed)
-    if mu == LIMIT_RESPONSE_MU:
-        step = lm.case_maneuver(cfg.nominal, lm.LimitCase("step", mu, speed * 3.6))
-        mans.append(dataclasses.replace(step, name="step-steer at the limit", duration=sw.MANEUVER_DURATION))
-    return mans
+    step = lm.case_maneuver(cfg.nominal, lm.LimitCase("step", mu, speed * 3.6))
+    return [dataclasses.replace(step, name="step-steer at the limit", duration=sw.MANEUVER_DURATION)]
 
 
 def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: int = 10) -> list[dict]:
@@ -238,10 +237,7 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
         case = sw.Case(-1, mu=mu, group="response")
         true = case.plant_params(cfg.nominal)
         sens = case.sensors(cfg.sensors)
-        mans = response_maneuvers(cfg, mu, case.speed_kmh / 3.6)
-        if mu == LIMIT_RESPONSE_MU:
-            mans = mans[-1:]
-        for man in mans:
+        for man in response_maneuvers(cfg, mu, case.speed_kmh / 3.6):
             r = simulate(true, cfg.plant, man, disturbances=Disturbances(friction=Friction(mu=mu)), seed=case.seed)
             nan = np.full(len(r.t), np.nan)
             runs = {"no control": (r.t, r.truth["yaw_rate"], r.truth["beta"], nan, nan, r.commands["steer"],

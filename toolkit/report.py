@@ -457,9 +457,10 @@ def build(data: dict) -> Doc:
     fig.tight_layout()
     D.figure("responses", fig, "Yaw rate and sideslip with no control, the paper design and the tuned design; "
                                "dashed: each design's reference (yaw rate, sideslip)")
+    from .limits import STEP_SATURATION
     D.p("Where the controller acts: the peak sideslip of each run and the peak yaw moment each design commands "
         "(0 N m: the law stayed off and the car drove as without control; the step steer at the limit asks the "
-        "nominal linear car for 1.5 mu g).")
+        f"nominal linear car for {STEP_SATURATION:g} mu g).")
     D.table(response_peaks(resp), headers=response_peak_headers(resp))
 
     D.h(2, "Provenance")
@@ -472,8 +473,8 @@ def build(data: dict) -> Doc:
 
 
 def _controllers(resp: list[dict]) -> list[str]:
-    names = sorted({r["controller"] for r in resp})
-    return ["no control"] + [n for n in names if n != "no control"] if "no control" in names else names
+    """The response runs' controllers, "no control" first."""
+    return sorted({r["controller"] for r in resp}, key=lambda n: (n != "no control", n))
 
 
 def response_peaks(resp: list[dict]) -> list[dict]:
