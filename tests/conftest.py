@@ -23,15 +23,30 @@ def rng():
     return np.random.default_rng(20261121)
 
 
+def progress_transcript(out):
+    """Where the shared quick design run's stderr (its progress bars) is kept: beside its folder."""
+    return out.parent / (out.name + "-stderr.txt")
+
+
+@pytest.fixture(scope="session")
+def quick_design_stderr(quick_design_dir):
+    """What the shared quick design run wrote to stderr: its progress bars."""
+    return progress_transcript(quick_design_dir).read_text()
+
+
 @pytest.fixture(scope="session")
 def quick_design_dir(tmp_path_factory, request):
     """``evstab design --quick`` on compact-ev, run once for every test that needs a real design folder
     (once per run: with pytest-xdist's workers, the first to need it makes it in their common temporary
-    folder while the others wait on a lock, then all read it)."""
+    folder while the others wait on a lock, then all read it). Its progress bars go to
+    ``progress_transcript(out)``."""
+    from contextlib import redirect_stderr
+
     from evstab.toolkit.cli import main
 
     def design(out):
-        assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick", "--no-progress"]) == 0
+        with open(progress_transcript(out), "w") as fh, redirect_stderr(fh):
+            assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick"]) == 0
         return out
 
     if not hasattr(request.config, "workerinput"):  # not a pytest-xdist worker

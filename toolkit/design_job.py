@@ -184,14 +184,18 @@ def load_design(path) -> LoadedDesign:
 
 
 # ------------------------------------------------------------------ analysis data
-def analysis_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], speeds=SPEEDS_KMH) -> tuple[list, list]:
-    """Speed-grid table (one row per design and speed) and pole-map data (one row per pole)."""
+def analysis_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], speeds=SPEEDS_KMH,
+                  tick=None) -> tuple[list, list]:
+    """Speed-grid table (one row per design and speed) and pole-map data (one row per pole); ``tick`` (optional)
+    is called after each design's grid and each design and speed's poles."""
+    tick = tick or (lambda: None)
     rows, poles = [], []
     p = cfg.nominal
     for pt in points:
         est, ctl = cfg.filter_design(pt), pt.controller(cfg.base_design())
         for r in speed_grid(p, est, ctl, speeds_kmh=speeds, gps_rate=cfg.sensors.gps_rate, dt=cfg.dt):
             rows.append({"design": pt.name, **r})
+        tick()
         for kmh in speeds:
             v = kmh / 3.6
             _, st = nominal_loop(ctl, v, p)
@@ -206,6 +210,7 @@ def analysis_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], speeds=SPEE
                                   "re": float(z.real), "im": float(z.imag)})
             except np.linalg.LinAlgError:
                 pass
+            tick()
     return rows, poles
 
 
@@ -225,15 +230,19 @@ def response_maneuvers(cfg: sw.SweepConfig, mu: float, speed: float) -> list:
     return [dataclasses.replace(step, name="step-steer at the limit", duration=sw.MANEUVER_DURATION)]
 
 
-def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: int = 10) -> list[dict]:
+RESPONSE_MUS = (1.0, 0.45, LIMIT_RESPONSE_MU)
+"""The frictions of the time responses (:func:`response_rows`)."""
+
+
+def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: int = 10, tick=None) -> list[dict]:
     """Time responses at 80 km/h: the standard manoeuvres on mu 1 and mu 0.45, and on
     :data:`LIMIT_RESPONSE_MU` the limit set's step steer, where the controller acts; no control and each
-    design."""
+    design (``tick``, optional: called after each friction's runs)."""
     from .closed_loop import program
     from .simulator import simulate
     rows = []
     prog = program(cfg.spec())
-    for mu in (1.0, 0.45, LIMIT_RESPONSE_MU):
+    for mu in RESPONSE_MUS:
         case = sw.Case(-1, mu=mu, group="response")
         true = case.plant_params(cfg.nominal)
         sens = case.sensors(cfg.sensors)
@@ -257,6 +266,8 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
                     rows.append({"mu": mu, "maneuver": man.name, "controller": label, "t": float(t[k]),
                                  "yaw_rate": float(yr[k]), "beta": float(b[k]), "yaw_rate_ref": float(ref[k]),
                                  "beta_ref": float(bref[k]), "steer": float(st[k]), "yaw_moment": float(nz[k])})
+        if tick is not None:
+            tick()
     return rows
 
 
@@ -371,8 +382,8 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     phase("sweep of the paper design")
     from . import limits as lm
     a_cache: dict = {}
-    none_lim = lm.run_limits(cfg, None, a_cache=a_cache)
-    paper_lim = lm.run_limits(cfg, cfg.paper, a_cache=a_cache)
+    none_lim = lm.run_limits(cfg, None, a_cache=a_cache, progress=progress)
+    paper_lim = lm.run_limits(cfg, cfg.paper, a_cache=a_cache, progress=progress)
     # FMVSS 126's lateral displacement, where no control and the paper design meet it, is a constraint of
     # the tuning itself (the criterion a stiff yaw-rate pole breaks first): the runs with the least margin
     # from the start, any other the candidate misses after it
@@ -400,19 +411,26 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
         rounds.extend(more)
         return point, rows
     tuned, rows_tuned, limit_rows, selection = limit_constrained(cfg, cases, rows_paper, tuned, rows_tuned, retune,
-                                                                  (none_lim, paper_lim, a_cache), log)
+                                                                  (none_lim, paper_lim, a_cache), log, progress)
     phase("limit manoeuvres and selection")
     rows = sorted(rows_paper + rows_tuned, key=lambda r: (r["case_id"], r["design"] != "paper"))
     summary = compare(rows)
     summary["tuned_is_paper"] = all(getattr(tuned, k) == getattr(paper, k) for k in sw.DesignPoint.TUNED)
     summary["limits"] = _limit_summary(limit_rows)
-    summary["margins"] = {pt.name: {k: m.as_dict() for k, m in design_margins(cfg, pt, cases).items()}
-                          for pt in (paper, tuned)}
+    points = [paper, tuned]
+    bar = sw._progress(len(points) * (2 + len(SPEEDS_KMH)) + len(RESPONSE_MUS), progress,
+                       "margins, analysis and responses", "step")
+
+    def margins_of(pt):
+        m = {k: m.as_dict() for k, m in design_margins(cfg, pt, cases).items()}
+        bar.update(1)
+        return m
+    summary["margins"] = {pt.name: margins_of(pt) for pt in points}
     summary["margin_constraint"] = {"disk_margin_min": DISK_MARGIN_MIN, "sensitivity_peak_max": SENSITIVITY_PEAK_MAX,
                                     "speeds_kmh": list(SPEEDS_KMH)}
-    points = [paper, tuned]
-    grid, poles = analysis_rows(cfg, points)
-    responses = response_rows(cfg, points)
+    grid, poles = analysis_rows(cfg, points, tick=lambda: bar.update(1))
+    responses = response_rows(cfg, points, tick=lambda: bar.update(1))
+    bar.close()
     phase("analysis and responses")
     tuning = {"method": "IPOPT (limited-memory Hessian) on the epigraph of the worst case; gradients by casadi "
                         "AD (forward mode) through compiled rollouts of the loop; stability constraint: decay rate "

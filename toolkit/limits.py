@@ -137,10 +137,19 @@ def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None, name
 
 
 def run_limits(cfg, point=None, cases: list[LimitCase] | None = None, a_cache: dict | None = None,
-               name: str | None = None) -> list[dict]:
-    """:func:`run_case` for every case (default :func:`limit_cases` of ``cfg.plant``)."""
+               name: str | None = None, progress: bool = False, label: str | None = None) -> list[dict]:
+    """:func:`run_case` for every case (default :func:`limit_cases` of ``cfg.plant``); ``progress``: a bar on
+    stderr, named ``label`` (default the design's name)."""
+    from .sweep import _progress
     a_cache = {} if a_cache is None else a_cache
-    return [run_case(cfg, c, point, a_cache, name) for c in (cases or limit_cases(cfg.plant))]
+    cases = cases or limit_cases(cfg.plant)
+    label = label or name or ("no control" if point is None else getattr(point, "name", "the design"))
+    rows = []
+    with _progress(len(cases), progress, f"limit manoeuvres, {label}", "case") as bar:
+        for c in cases:
+            rows.append(run_case(cfg, c, point, a_cache, name))
+            bar.update(1)
+    return rows
 
 
 def no_worse(row: dict, none: dict) -> tuple[bool, str]:

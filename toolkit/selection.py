@@ -128,7 +128,7 @@ def tune_rounds(cfg, cases, rows_paper, quick, executor, scheduler, workers, pro
     return best[0], best[1], rounds, ids
 
 
-def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_start, log):
+def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_start, log, progress: bool = False):
     """The tuned design under the limit constraint (:mod:`toolkit.limits`).
 
     The tuning's candidate is driven through the limit manoeuvres; it is accepted when it is no
@@ -176,7 +176,8 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
             log(f"  limit check, box x{np.exp(radius):.3g}: no candidate")
             last["missed"] = []
             return None
-        lim = lm.run_limits(cfg, point, a_cache=a_cache)
+        lim = lm.run_limits(cfg, point, a_cache=a_cache, progress=progress,
+                            label=f"the candidate K_beta {point.k_beta:.4g}")
         last["missed"] = lm.missed_displacement(lim, none)
         j = lm.judge(lim, none)
         worst = entry["worst_cost"]

@@ -429,9 +429,10 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
     return [row for rs in results for row in rs]
 
 
-def _progress(total: int, enabled: bool):
+def _progress(total: int | None, enabled: bool, desc: str = "sweep", unit: str = "case"):
+    """A progress bar on stderr (``total`` None: a count without an end)."""
     from tqdm import tqdm
-    return tqdm(total=total, desc="sweep", unit="case", disable=not enabled, leave=False)
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, leave=False)
 
 
 def sweep_cases(quick: bool = False, seed: int = 7, plant: str = "two-track") -> list[Case]:

@@ -482,7 +482,10 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     d_parts = [list(range(k, n_d, workers)) for k in range(workers)] if pool else [list(range(n_d))]
 
     from tqdm import tqdm
-    bar = tqdm(total=max_iter + 1, desc="tuning", unit="eval", disable=not progress, leave=False)
+    # a count without an end: IPOPT's line searches evaluate an iteration more than once, and every start runs
+    # up to max_iter iterations
+    bar = tqdm(total=None, desc=f"tuning ({starts} IPOPT starts of up to {max_iter} iterations)", unit="eval",
+               disable=not progress, leave=False)
 
     def evaluate(phi):
         key = tuple(np.round(phi, 15))

@@ -309,6 +309,19 @@ def test_every_report_plot_names_its_axes_with_units(design_dir, monkeypatch):
     assert "over (1 deg/s)^2" in text and "over (0.5 deg)^2" in text and "plus 0.1 x" in text
 
 
+def test_every_phase_of_the_design_job_shows_a_bar(design_dir, quick_design_stderr):
+    """The quick design's stderr (tests/conftest.py keeps it): a bar for the sweep, for each design's limit
+    manoeuvres, for the tuning (a count of evaluations, no total it would outrun) and for the margins, analysis
+    and responses; and no tuning bar with a fixed total (IPOPT's evaluations exceed its iterations)."""
+    text = quick_design_stderr
+    for bar in ("sweep:", "limit manoeuvres, no control:", "limit manoeuvres, paper:",
+                "tuning (3 IPOPT starts of up to 12 iterations):", "margins, analysis and responses:"):
+        assert bar in text, bar
+    assert "limit manoeuvres, the candidate K_beta" in text or "no candidate" in (design_dir / "design.json").read_text()
+    tuning = [seg for seg in text.replace("\n", "\r").split("\r") if seg.startswith("tuning (")]
+    assert tuning and not any("%|" in seg for seg in tuning)  # tqdm draws "NN%|" only for a bar with a total
+
+
 def test_the_responses_show_the_controller_acting(design_dir):
     """The report's time responses include a run where the controller acts: the limit set's step steer on
     mu 0.5, where the car alone slides past 10 deg and both designs hold it below 5 deg commanding a
