@@ -142,6 +142,12 @@ def cmd_estimate(args) -> int:
         from .estimation.noise_fit import load_noise
         noise = load_noise(args.noise)
     d = design_filter(args.method, p, noise, latency=args.gps_latency)
+    if args.bias_learn_rate is not None:
+        if not d.bias:
+            raise EvstabError(f"'{args.method}' has no gyro-bias state: --bias-learn-rate goes with dakf, amrkf, "
+                              f"kf-bias, mbkf or double-layer")
+        import dataclasses
+        d = dataclasses.replace(d, noise=dataclasses.replace(d.noise, bias_learn_rate=args.bias_learn_rate))
     if args.tune:
         return _tune_noise(args, d, log)
     bias = None
@@ -502,6 +508,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-monitor", action="store_true",
                     help="feed the log to the filter as it is: no sensor-fault screening, no fault_* columns")
     sp.add_argument("--noise", help="noise file (TOML, from --tune): the filter's noise settings; default the method's")
+    sp.add_argument("--bias-learn-rate", type=_nonneg, metavar="RAD_S",
+                    help="learn the gyro bias in full only below this yaw rate and not from twice it (0: everywhere, "
+                         "the default; 0.2 on real drives with a nominal model from a data sheet, docs/estimators.md)")
     sp.add_argument("--tune", action="store_true",
                     help="fit the filter's noise intensities to the log (innovation maximum likelihood: gyro and GPS "
                          "velocity noise, process noise) and write them as a noise file to --out, which "

@@ -47,3 +47,27 @@ def test_revsted_samples(rows):
     _, r = rows
     assert r[("ReV-StED ADMA (RTK course)", "as logged", "dakf")]["rms_deg"] < 0.35  # 0.26 measured
     assert r[("ReV-StED OBD (CAN)", "as logged", "dakf")]["gyro_stuck_rows"] == 0
+
+
+def test_the_bias_held_in_turns_on_the_gti_drives():
+    """Whole GTI drives, reference gyro, the first emulation seed: ``dakf`` with its gyro bias learnt in full only
+    below 0.2 rad/s (``NoiseSettings.bias_learn_rate``, the study's ``dakf, bias held in turns`` row) against
+    the default, which learns it at every yaw rate. Learnt in the turns the bias takes up the nominal model's
+    sideslip error: 1.17, 0.70 and 2.16 deg RMS; held there, 0.55, 0.49 and 0.63 (docs/estimators.md)."""
+    import dataclasses
+
+    from evstab.toolkit.emulate import Emulation, emulate
+    from evstab.toolkit.estimation import design_filter, run_estimator
+    from evstab.toolkit.estimation.spec import estimation_noise
+    for drive in real_drives.drives(DATA)[:len(real_drives.GTI)]:
+        cols = emulate(drive["cols"], Emulation(seed=0))
+        log = {k: v for k, v in cols.items() if not k.endswith("_true")}
+        rms = {}
+        for rate in (0.0, real_drives.BIAS_HELD_RATE):
+            est = run_estimator(design_filter("dakf", drive["vehicle"],
+                                              dataclasses.replace(estimation_noise(), bias_learn_rate=rate)), log)
+            rms[rate] = real_drives.errors(cols, est["beta"])["rms_deg"]
+        held, everywhere = rms[real_drives.BIAS_HELD_RATE], rms[0.0]
+        # the smallest gain measured, Low_Speed's 0.70 -> 0.49, is 30 %; the bound asks for 15 %
+        assert held < 0.85 * everywhere, (drive["drive"], rms)
+        assert held < 0.7, (drive["drive"], rms)  # 0.55 / 0.49 / 0.63 measured

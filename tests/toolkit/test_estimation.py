@@ -392,3 +392,69 @@ def test_the_sideslip_output_is_the_estimate_conditioned_on_zero_disturbances_wh
         xs, Ps = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
         f = ca.Function("f", [xs, Ps], [significant_sideslip(d, xs, Ps, CASADI)])
         assert float(f(x, P)) == pytest.approx(significant_sideslip(d, x, P, NUMPY), abs=1e-15)
+
+
+def test_a_consider_state_keeps_its_estimate_and_the_joseph_covariance():
+    """``scalar_update`` with a gain scale: with all ones it is filterpy's update (Joseph form); with 0 on one
+    state that state's estimate stays, and the covariance is the Joseph form ``(I - K h) P (I - K h)^T + K r K^T``
+    of the scaled gain, written out with matrices (a Schmidt consider update)."""
+    from evstab.toolkit.estimation.core import scalar_update
+    rng = np.random.default_rng(3)
+    n = 5
+    M = rng.normal(size=(n, n))
+    P = M @ M.T + n * np.eye(n)  # positive definite
+    x, h, r, z = rng.normal(size=n), rng.normal(size=n), 0.3, 1.7
+    kf = KalmanFilter(dim_x=n, dim_z=1)
+    kf.x, kf.P = x.copy(), P.copy()
+    kf.update(np.array([z]), R=r, H=h[None, :])
+    x1, P1, _, _ = scalar_update(x, P, h, z - h @ x, r, NUMPY, n, scale=np.ones(n))
+    np.testing.assert_allclose(x1, kf.x, rtol=1e-12)  # the same update, another order of operations
+    np.testing.assert_allclose(P1, kf.P, rtol=1e-10, atol=1e-12)
+    scale = np.ones(n)
+    scale[3] = 0.0
+    x2, P2, S, _ = scalar_update(x, P, h, z - h @ x, r, NUMPY, n, scale=scale)
+    assert x2[3] == x[3]
+    K = P @ h / (h @ P @ h + r) * scale
+    IKh = np.eye(n) - np.outer(K, h)
+    np.testing.assert_allclose(P2, IKh @ P @ IKh.T + r * np.outer(K, K), rtol=1e-10, atol=1e-12)
+    assert P2[3, 3] == P[3, 3]  # a state that does not learn keeps its variance
+    assert np.all(np.linalg.eigvalsh(P2) > 0)
+
+
+@pytest.mark.parametrize("rate, factor", [(0.0, 1.0), (0.2, 1.0), (0.3, 0.5), (0.4, 0.0), (-0.4, 0.0), (1.0, 0.0)])
+def test_the_bias_learns_in_full_below_its_rate_and_not_from_twice_it(rate, factor):
+    """``bias_learn_rate`` 0.2 rad/s: the bias's gain factor at the gyro-less-bias rate ``rate`` (whole up to
+    0.2, half at 0.3, none from 0.4, either sign); every other state's gain whole."""
+    from evstab.toolkit.estimation.kalman import _bias_learning
+    d = design_filter("dakf", load_vehicle("compact-ev"), dataclasses.replace(estimation_noise(), bias_learn_rate=0.2))
+    x = np.zeros(d.n)
+    ib = d.index("gyro_bias")
+    x[ib] = 0.01
+    P = d.initial_covariance()
+    P[ib, ib] *= 0.25 ** 2  # a bias known to a quarter of its initial spread: the rate alone decides
+    f = _bias_learning(d, x, P, rate + 0.01, NUMPY)
+    expect = np.ones(d.n)
+    expect[d.index("gyro_bias")] = factor
+    np.testing.assert_allclose(f, expect, atol=1e-15)
+
+
+def test_the_ecu_filter_learns_its_bias_everywhere():
+    """The ECU's filter (the control law's observer) has no learning gate: its recursion is the one the law was
+    designed and judged with."""
+    from evstab.toolkit.estimation.kalman import _bias_learning
+    d = design_filter("dakf", load_vehicle("compact-ev"), control=True)
+    assert d.noise.bias_learn_rate == 0 and _bias_learning(d, np.zeros(d.n), d.initial_covariance(), 1.0, NUMPY) is None
+
+
+@pytest.mark.parametrize("share, factor", [(1.0, 1.0), (0.75, 0.5), (0.5, 0.0), (0.25, 0.0)])
+def test_an_unknown_bias_learns_in_a_turn(share, factor):
+    """In a turn (the rate's factor 0), the bias learns in full with its initial spread, half at 3/4 of it, not
+    at all from :data:`BIAS_UNKNOWN` (1/2) of it."""
+    from evstab.toolkit.estimation.kalman import BIAS_UNKNOWN, _bias_learning
+    assert BIAS_UNKNOWN == 0.5
+    d = design_filter("dakf", load_vehicle("compact-ev"), dataclasses.replace(estimation_noise(), bias_learn_rate=0.2))
+    ib = d.index("gyro_bias")
+    P = d.initial_covariance()
+    P[ib, ib] *= share ** 2
+    f = _bias_learning(d, np.zeros(d.n), P, 1.0, NUMPY)
+    assert f[ib] == pytest.approx(factor, abs=1e-12) and f[d.index("beta")] == 1.0

@@ -90,7 +90,7 @@ def predict_delta(x, P, E, Q, o=NUMPY, n=None, w=None):
     return x, _mirror(P + (M + M.T + M @ E.T) + Q, P, n, o)
 
 
-def scalar_update(x, P, h, innov, r, o=NUMPY, n=None, gate=None):
+def scalar_update(x, P, h, innov, r, o=NUMPY, n=None, gate=None, scale=None):
     """Scalar measurement update in Joseph form; returns ``(x, P, S, K)``.
 
     ``(I - K h) P (I - K h)^T + K r K^T`` is evaluated in its expanded, O(n^2) form
@@ -99,6 +99,9 @@ def scalar_update(x, P, h, innov, r, o=NUMPY, n=None, gate=None):
     the two n x n x n products. ``gate`` (0 or 1, number or symbol) multiplies the gain:
     with 0 the update leaves ``x`` and ``P`` exactly as they were, with 1 it is the
     plain update, so a conditional update needs no selection of every element.
+    ``scale`` (a column, None: all 1) multiplies the gain entry by entry: 0 for a state makes it a
+    consider state (Schmidt): the update leaves its estimate as it is while its covariance and its
+    correlations with the rest stay right for the gain used (the Joseph form holds for any gain).
     The returned ``K`` is the ungated gain.
     """
     n = P.shape[0] if n is None else n
@@ -106,6 +109,8 @@ def scalar_update(x, P, h, innov, r, o=NUMPY, n=None, gate=None):
     S = dot(h, m, o) + r
     K = m * (1.0 / S)
     Kg = K if gate is None else K * gate
+    if scale is not None:
+        Kg = Kg * scale
     if o is CASADI:
         Pn = _mirror(lambda i, j: P[i, j] - Kg[i] * m[j] - m[i] * Kg[j] + Kg[i] * Kg[j] * S, P, n, o)
     else:

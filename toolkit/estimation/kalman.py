@@ -306,9 +306,10 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         P = P + (b_st @ b_st.T if o is CASADI else np.outer(b_st, b_st)) * (nz.q_steer * dt)
 
     # 2. gyro, every sample
+    learn = _bias_learning(d, x, P, gyro, o)
     hg = _col(gyro_row(d), o)
     gyro_resid = gyro - _dot(hg, x, o)
-    x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok)
+    x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok, scale=learn)
 
     # 3. standstill: the yaw rate is zero
     if d.standstill_update and not moving:
@@ -341,7 +342,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     else:
         r_c = nz.course_std**2
     if with_course:
-        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n)
+        xc, Pc, S, K = scalar_update(x, P, hc, innov, r_c, o, n, scale=learn)
         nis = innov * innov / S
         resid = innov / o.sqrt(S)
         usable = (fix > 0.5) * (sats >= 4) * (v >= nz.gps_min_speed)
@@ -433,6 +434,28 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
                 gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))
     return z_next, y
+
+
+BIAS_UNKNOWN = 0.5
+"""While the gyro bias's standard deviation is above this share of its initial spread (a cold start, a start in
+a turn), it learns in full whatever the yaw rate: an unknown bias is then the largest error there is; it is
+below it within seconds of the first straight (:func:`_bias_learning`)."""
+
+
+def _bias_learning(d: FilterDesign, x, P, gyro, o):
+    """The gain scale of this sample's gyro and course updates (``NoiseSettings.bias_learn_rate``): 1 on every
+    state but the gyro bias, ``clip(2 - |gyro - bias| / bias_learn_rate, 0, 1)`` on the bias, or 1 there too
+    while the bias is unknown (its standard deviation from its initial spread to :data:`BIAS_UNKNOWN` of it,
+    linearly to the rate's factor); None where the bias always learns (no bias state, or the setting 0)."""
+    if not (d.bias and d.noise.bias_learn_rate > 0):
+        return None
+    ib = d.index("gyro_bias")
+    f = o.fmin(o.fmax(2.0 - o.fabs(gyro - x[ib]) / d.noise.bias_learn_rate, 0.0), 1.0)
+    spread = float(np.sqrt(d.initial_covariance()[ib, ib]))
+    unknown = o.fmin(o.fmax((o.sqrt(o.fmax(P[ib, ib], 0.0)) / spread - BIAS_UNKNOWN) / (1.0 - BIAS_UNKNOWN), 0.0), 1.0)
+    f = o.fmax(f, unknown)
+    e = np.eye(d.n)[ib]
+    return _col(1.0 - e, o) + _col(e, o) * f
 
 
 def conditions_sideslip(d: FilterDesign) -> bool:

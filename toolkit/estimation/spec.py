@@ -249,6 +249,16 @@ class NoiseSettings:
     bias again and again until the bias estimate was 100 deg/s off)."""
     bias_cusum_ay_max: float = 2.0
     """[m/s^2], see ``bias_cusum_rate_max``."""
+    bias_learn_rate: float = 0.0
+    """[rad/s] The gyro bias learns in full only while the gyro, less the bias estimate, reads below this, and
+    not at all from twice it (filters with a bias state; 0 = always in full): its gain in the gyro and course
+    updates is multiplied by ``clip(2 - |r| / bias_learn_rate, 0, 1)``, and in between it is a consider state
+    (:func:`toolkit.estimation.core.scalar_update`: its estimate held, its variance and correlations kept
+    right for the gain used). In a turn, a course innovation is as much the nominal model's sideslip error
+    (tyres stiffer or softer than the file says) as the heading's drift; learnt there, the bias takes up the
+    model's error and carries it into every later heading. On the Stanford GTI's limit drives the bias,
+    learnt in every turn, swung by up to 0.8 deg/s from its true 0.17; held in turns, it is learnt on the
+    straights and the correlations the turns built."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
