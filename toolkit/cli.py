@@ -521,7 +521,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="estimate CSV to write (with --tune: the noise file)")
     sp.set_defaults(func=cmd_estimate)
     sp = sub.add_parser("replay", help="run a design's estimator and controller over a drive log (open loop)")
-    sp.add_argument("log", help="drive-log CSV (DESIGN.md schema; steer_driver, steer_limited_last and "
+    sp.add_argument("log", help="drive-log CSV (the schema of docs/formats.md; steer_driver, steer_limited_last and "
                                 "yaw_moment_limited_last are read when present)")
     sp.add_argument("--design", required=True, help="an 'evstab design' folder")
     sp.add_argument("--mu", type=_positive, help="friction the reference assumes (default: the vehicle's)")
