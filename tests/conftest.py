@@ -28,6 +28,17 @@ def progress_transcript(out):
     return out.parent / (out.name + "-stderr.txt")
 
 
+def printed_transcript(out):
+    """Where the shared quick design run's stdout (what command 1 prints) is kept: beside its folder."""
+    return out.parent / (out.name + "-stdout.txt")
+
+
+@pytest.fixture(scope="session")
+def quick_design_stdout(quick_design_dir):
+    """What the shared quick design run printed (command 1's transcript)."""
+    return printed_transcript(quick_design_dir).read_text()
+
+
 @pytest.fixture(scope="session")
 def quick_design_stderr(quick_design_dir):
     """What the shared quick design run wrote to stderr: its progress bars."""
@@ -40,12 +51,13 @@ def quick_design_dir(tmp_path_factory, request):
     (once per run: with pytest-xdist's workers, the first to need it makes it in their common temporary
     folder while the others wait on a lock, then all read it). Its progress bars go to
     ``progress_transcript(out)``."""
-    from contextlib import redirect_stderr
+    from contextlib import redirect_stderr, redirect_stdout
 
     from evstab.toolkit.cli import main
 
     def design(out):
-        with open(progress_transcript(out), "w") as fh, redirect_stderr(fh):
+        with open(progress_transcript(out), "w") as err, redirect_stderr(err), \
+                open(printed_transcript(out), "w") as printed, redirect_stdout(printed):
             assert main(["design", "--vehicle", "compact-ev", "--out", str(out), "--quick"]) == 0
         return out
 

@@ -322,6 +322,21 @@ def test_every_phase_of_the_design_job_shows_a_bar(design_dir, quick_design_stde
     assert tuning and not any("%|" in seg for seg in tuning)  # tqdm draws "NN%|" only for a bar with a total
 
 
+def test_the_readme_prints_what_command_1_prints(design_dir, quick_design_stdout):
+    """The README's transcript of command 1 is what the suite's run of the same job prints, line for line, but
+    for the phases' durations and the output folder: a changed tuning, sweep or selection fails this."""
+    import re
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    start = readme.index("What command 1 prints after the install")
+    block = readme[readme.index("```\n", start) + 4:]
+    block = block[:block.index("```")]
+
+    def norm(text):
+        text = re.sub(r": [0-9.]+ s \(total [0-9.]+ s\)", ": _ s", text)
+        return [re.sub(r"-> \S+report\.html", "-> report.html", ln.rstrip()) for ln in text.strip().splitlines()]
+    assert norm(block) == norm(quick_design_stdout)
+
+
 def test_the_responses_show_the_controller_acting(design_dir):
     """The report's time responses include a run where the controller acts: the limit set's step steer on
     mu 0.5, where the car alone slides past 10 deg and both designs hold it below 5 deg commanding a
