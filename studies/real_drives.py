@@ -105,10 +105,28 @@ def drives(data: Path, quick: bool = False) -> list[dict]:
     adma = read_mapped(data / "revsted-thi" / "raw" / "ADMA_data_sample.csv", MAPS / "revsted-adma.toml").columns
     out.append({"drive": "ReV-StED ADMA (RTK course)", "cols": dict(adma), "emulate": False, "vehicle": generic,
                 "gyro_fixed": True})
-    obd = read_mapped(data / "revsted-thi" / "raw" / "OBD_Sample.csv", MAPS / "revsted-obd.toml").columns
-    out.append({"drive": "ReV-StED OBD (CAN)", "cols": dict(obd), "emulate": True, "vehicle": generic,
+    obd = dict(read_mapped(data / "revsted-thi" / "raw" / "OBD_Sample.csv", MAPS / "revsted-obd.toml").columns)
+    obd["beta_true"] = sideslip_moved(obd["beta_true"], obd["yaw_rate"], obd["speed"],
+                                      REVSTED_REFERENCE_AHEAD_OF_REAR_AXLE - generic.lr)
+    out.append({"drive": "ReV-StED OBD (CAN)", "cols": obd, "emulate": True, "vehicle": generic,
                 "gyro_fixed": True})
     return out
+
+
+REVSTED_REFERENCE_AHEAD_OF_REAR_AXLE = 0.76
+"""[m] Where the OBD sample's Correvit sideslip is: its "CG" lies this far ahead of the rear axle by the sample's
+own kinematics (in the walking-pace U-turn, sideslip x speed / yaw rate = 0.76 m; the dataset's README). The
+generic vehicle file's CG is ``lr`` = 1.55 m ahead of it; the reference is moved there (:func:`sideslip_moved`)
+before the course is emulated from it and the estimates are scored, so that the course, the filters' model and
+the reference speak of one point."""
+
+
+def sideslip_moved(beta, yaw_rate, speed, ahead, min_speed: float = 0.5) -> np.ndarray:
+    """The sideslip at the CG from the sideslip ``beta`` at a point ``ahead`` [m] in front of it (behind it:
+    negative): the lateral velocity there is the CG's plus ``ahead`` x the yaw rate, so
+    ``tan(beta_cg) = tan(beta) - ahead r / v`` (``v`` the speed, at least ``min_speed``)."""
+    v = np.maximum(np.abs(np.asarray(speed, float)), min_speed)
+    return np.arctan(np.tan(np.asarray(beta, float)) - ahead * np.asarray(yaw_rate, float) / v)
 
 
 def scored(cols) -> np.ndarray:
