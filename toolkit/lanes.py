@@ -51,11 +51,8 @@ WIDE = 8
 NARROW = 2
 """Lanes per vector of the loop kernel that rolls out one or two cases (a single closed-loop run, a
 run continued block by block) where :func:`native_width` is wider. A vector's step costs about as
-much with one case in it as with all of them, and a narrow one costs about half a wide one: a
-one-case run of micro-ev's two-track loop took 1.37 us per step at 2 lanes against 2.64 us at 8
-(1.40 at 1 lane, 1.55 at 4; the same results bit for bit; the 2-core AMD EPYC of
-:func:`native_width`, the instructions in casadi's order, before :func:`_schedule`). Two lanes hold
-two cases for the price of one."""
+much with one case in it as with all of them, and a narrow one about half a wide one, with the same
+results bit for bit: two lanes hold two cases for the price of one (measured: docs/internals.md, compiled kernels)."""
 
 CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fno-math-errno")
 """No fused multiply-add and no fast-math: every lane's arithmetic is IEEE, as in a scalar
@@ -64,9 +61,8 @@ evaluation. ``-fno-math-errno`` only lets ``sqrt`` and ``floor`` vectorise (errn
 
 def kernel_flags(width: int) -> tuple[str, ...]:
     """The compiler flags of a loop kernel of ``width`` lanes: :data:`CFLAGS`, at ``-O2`` for
-    :data:`WIDE` kernels, which ``-O3`` makes no faster and compiles more slowly (the micro-ev's
-    two-track loop: 469 against 475 ns per case and step, 3.8 against 6.6 s to compile; the
-    multi-body car's 1.75 against 1.81 us, 17.4 against 17.7 s); the same IEEE arithmetic either way."""
+    :data:`WIDE` kernels, which ``-O3`` makes no faster and compiles more slowly (measured: docs/internals.md, compiled kernels); the same
+    IEEE arithmetic either way."""
     return (("-O2",) + CFLAGS[1:]) if width >= WIDE else CFLAGS
 
 
@@ -77,12 +73,10 @@ def native_width() -> int:
 
     A loop step is one long chain of dependent operations, so a vector's step waits on latencies
     more than on arithmetic. Eight lanes fill one AVX-512 register, and its 32 registers hold the
-    step's working values: on a 2-core AMD EPYC (Zen 4), a two-track loop step took 449 ns per case
-    at 8 lanes against 687 ns at 4 and the multi-body car's 1.47 against 2.61 us, bit for bit the
-    same results (the bicycle's, short enough for 4 lanes, 207 against 197 ns). Without AVX-512 the
-    same 8 lanes are two AVX2 registers, the 16 of them spill, and the two-track step took 1.55 us
-    per case (the same machine, ``-mno-avx512f``). The tuning's forward-mode kernel, seven times the
-    values per step, stays at :data:`WIDTH` (18.1 against 15.9 ms per run at 8 lanes)."""
+    step's working values: the two-track and multi-body loops run faster per case at 8 lanes than at 4,
+    bit for bit the same results. Without AVX-512 the same 8 lanes are two AVX2 registers, the 16 of
+    them spill, and the step is slower than at 4. The tuning's forward-mode kernel, seven times the
+    values per step, stays at :data:`WIDTH` (measured: docs/internals.md, compiled kernels)."""
     cc = compiler()
     if cc is None:
         return WIDTH
@@ -185,16 +179,11 @@ def _schedule(nodes: list[_Node], window: int | None = None) -> list[int]:
     after another, RK4's stages one after another, so that neighbouring instructions mostly wait on
     each other. A loop step is thousands of instructions, more than a processor's out-of-order window
     looks ahead, so it finds the independent work only if it is written close together. Ordered by
-    chain length, the work that can start together is written together: the compact-ev two-track
-    loop's kernel took 324-334 against 425-429 ns per case and step at 8 lanes (32 cases,
-    alternating runs), a one-case micro-ev run 1.15-1.30 against 1.36-1.58 us per step at 2 lanes,
-    the same bits (``tests/toolkit/test_lanes.py``). Unit latencies for every operation gave 354
-    and 1.20-1.26. A kernel much larger than the registers can hold needs the window: the tuning's
-    forward-mode step, 56k instructions at 4 lanes and -O1, took 5.8 against 3.3 us per case and
-    step in this order over the whole step (its values then live long and spill), and 2.5 against
-    2.9 us with windows of 1024 nodes (:data:`toolkit.tuning.FORWARD_WINDOW`). The loop's kernels
-    keep the whole step: windows of 1024 left the sweep's kernel as it was and made the one-case
-    plant kernel slower (0.61 against 0.50-0.52 us per step)."""
+    chain length, the work that can start together is written together, and the loop kernels run
+    faster with the same bits (``tests/toolkit/test_lanes.py``). A kernel much larger than the
+    registers can hold needs the window: the tuning's forward-mode step, reordered over the whole step,
+    keeps its values alive long enough to spill, and is faster reordered within windows
+    (:data:`toolkit.tuning.FORWARD_WINDOW`). The loop's kernels keep the whole step (measured: docs/internals.md, compiled kernels)."""
     depth = [0.0] * len(nodes)
     for n, node in enumerate(nodes):
         if node.invariant or node.op in (ca.OP_INPUT, ca.OP_CONST):
@@ -335,8 +324,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
             stores.setdefault(dst, {})[el] = name(n)
     for dst in sorted(stores):  # an output passed as NULL is not stored
         # the sample's vectors side by side, then each case's row of them: one loop over the cases,
-        # not one per element (compact-ev's sweep kernel at 8 lanes: storing both outputs took 10-19
-        # against 27-30 ns per case and step, of 306-311 against 324-325 in all)
+        # not one per element (faster: docs/internals.md, compiled kernels)
         m = fn.nnz_out(dst)
         vals = ", ".join(stores[dst][el] for el in range(m))  # dense outputs: every element is there
         body.append(f"if (out[{dst}]) {{")

@@ -258,8 +258,8 @@ _JAC: dict = {}
 def analysis_jacobian(spec):
     """The loop step's Jacobian over :func:`analysis_states` for ``spec``, compiled (cached) when a
     compiler is there. At ``-Og``: the derivative code is large (93,417 instructions for compact-ev)
-    and runs a few hundred times per analysis; ``-Og`` compiled it in 10 s against 17-18 s at
-    ``-O1``, and a call took 51-70 us against 56-67 (two runs each, 200 calls timed)."""
+    and runs a few hundred times per analysis; ``-Og`` compiles it in about half the time of ``-O1``
+    and a call runs as fast (measured: docs/internals.md, compiled kernels)."""
     from .closed_loop import traced
     spec = traced(spec)
     if spec not in _JAC:

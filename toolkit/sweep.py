@@ -281,7 +281,7 @@ _WORKSPACE = threading.local()
 """The rollouts' input and signal arrays of a thread (``arrays``: name -> flat array), kept from one
 block (and one task) to the next: fresh arrays of this size come from the operating system as
 untouched pages, and faulting them in (zero-filled) cost about a tenth of a sweep worker's time
-(``benchmarks/bench_sweep.py``: 522 against 482 ns per case and step). Per thread, because Dask's
+(docs/internals.md). Per thread, because Dask's
 in-process cluster runs its workers as threads of one process."""
 
 

@@ -160,14 +160,14 @@ def _forward_step(spec, k: int) -> ca.Function:
 
 FORWARD_CFLAGS = ("-O1",) + lanes_mod.CFLAGS[1:]
 """The forward-mode kernel is large (56k instructions for the two-track loop, 86k for the multi-body
-car's): at -O1 gcc compiles the two-track's in half the time of -O3 (17 against 35 s) and it runs 5 %
-slower (measured); the same IEEE arithmetic either way."""
+car's): at -O1 gcc compiles it in half the time of -O3 and it runs a little slower (measured: docs/internals.md, compiled kernels); the
+same IEEE arithmetic either way."""
 
 
 FORWARD_WINDOW = 1024
 """The forward-mode kernel's instructions are reordered within runs of this many
-(:func:`toolkit.lanes._schedule`): 2.5 against 2.9 us per case and step in casadi's order (8 cases,
-alternating runs); reordered over the whole step its values spill (5.8 against 3.3 us)."""
+(:func:`toolkit.lanes._schedule`): faster than casadi's order; reordered over the whole step its values
+spill (measured: docs/internals.md, compiled kernels)."""
 
 
 def _cost_function(prog, n: int, nz_max: float) -> ca.Function:

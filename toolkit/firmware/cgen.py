@@ -85,8 +85,8 @@ def _ops(p: Precision) -> dict:
         # fmin/fmax inline: the x86-64 C library's result (the second operand when the two compare
         # equal, the other one when one is NaN), without a call. Spelled as a NaN test of the second
         # operand around the plain select, which a compiler turns into one minsd/maxsd (it returns the
-        # second operand when either is NaN) and a test it can predict, not two compare-and-branches:
-        # the compact-ev ECU step took 151-155 against 157-165 ns (benchmarks/bench_firmware.py)
+        # second operand when either is NaN) and a test it can predict, not two compare-and-branches
+        # (faster: docs/internals.md, compiled kernels)
         ca.OP_FMIN: lambda a: f"({a[1]} != {a[1]}) ? {a[0]} : (({a[0]} < {a[1]}) ? {a[0]} : {a[1]})",
         ca.OP_FMAX: lambda a: f"({a[1]} != {a[1]}) ? {a[0]} : (({a[0]} > {a[1]}) ? {a[0]} : {a[1]})",
         ca.OP_FLOOR: lambda a: f"{f('floor')}({a[0]})",
