@@ -218,3 +218,38 @@ def test_a_rollover_error_crosses_a_process_boundary():
     from evstab.toolkit.simulator import RolloverError
     e = pickle.loads(pickle.dumps(RolloverError("commonroad-mb:1 rolled over at t = 2.345 s", 2.345)))
     assert isinstance(e, RolloverError) and e.t == 2.345 and str(e) == "commonroad-mb:1 rolled over at t = 2.345 s"
+
+
+@pytest.mark.parametrize("plant", ["bicycle-roll", "two-track"])
+def test_the_integrator_against_an_independent_oracle(plant):
+    """The compiled plant's RK4 at 1 kHz against scipy's DOP853 at rtol 1e-11 on the same model (commands held
+    over each sample), through 0.6 s of a growing sine steer with drive torque at 72 km/h: an integrator
+    written elsewhere, so a wrong stage weight or sub-step in evstab's would show here, which the numpy RK4
+    above (the same formula) cannot."""
+    from scipy.integrate import solve_ivp
+    p = load_vehicle("compact-ev")
+    model = get_plant(plant)
+    n = 600
+    cmd = np.zeros((len(COMMANDS), n))
+    cmd[0] = 0.04 * np.sin(np.arange(n) * 0.01) * np.linspace(0.2, 1.0, n)
+    cmd[1] = 200.0
+    cmd[2], cmd[3] = 20.0, 1.0
+    w = default_disturbance(0.9)
+    x0 = np.asarray(model.initial_state(p, 20.0), float)
+    c = CompiledPlant(model, p, 1e-3, compile=True)
+    X, _ = c.rollout(x0, cmd, w)
+    x = x0.copy()
+    ref = [x.copy()]
+    for k in range(n):
+        sol = solve_ivp(lambda t, xx: np.asarray(model.f(xx, model.command_map(cmd[:, k], xx, p), w, p), float).ravel(),
+                        (0.0, 1e-3), x, method="DOP853", rtol=1e-11, atol=1e-13)
+        x = sol.y[:, -1]
+        ref.append(x.copy())
+    ref = np.array(ref).T
+    scale = np.maximum(np.abs(ref).max(axis=1, keepdims=True), 1.0)
+    err = np.abs(X - ref) / scale
+    # measured: at most 1.3e-7 of a state's scale (the two-track's filtered longitudinal acceleration, whose
+    # load-transfer lag and the wheels' spin are the model's fastest modes), 4.7e-9 rad/s of yaw rate; a
+    # second-order integrator (Heun) at 1 kHz is off by 3.3e-6 (bicycle-roll) and 8.1e-5 (two-track) of a
+    # state's scale against the same oracle (measured), so 1e-6 tells them apart
+    assert err.max() < 1e-6, err.max(axis=1)
