@@ -133,6 +133,17 @@ def steady_state_gains(p: VehicleParams, vx: float) -> tuple[float, float]:
 
     ``beta/delta = (1 - M l_f v^2 / (2 L C_r l_r)) l_r / (L (1 + G v^2))`` and
     ``r/delta = v / (L (1 + G v^2))``.
+
+    Examples
+    --------
+    A 2 deg road-wheel step at 60 km/h: the yaw rate and sideslip a linear single-track car settles at.
+
+    >>> import numpy as np
+    >>> from evstab.plants import load_vehicle
+    >>> from evstab.plants.bicycle import steady_state_gains
+    >>> kb, kg = steady_state_gains(load_vehicle("compact-ev"), 60 / 3.6)
+    >>> [round(float(np.degrees(k * np.radians(2.0))), 3) for k in (kg, kb)]  # deg/s, deg
+    [10.217, -0.113]
     """
     L, g = p.wheelbase, p.stability_factor
     den = 1.0 + g * vx**2

@@ -372,6 +372,14 @@ def make_maneuver(name: str, p: VehicleParams, speed: float, amplitude: float | 
     path-following manoeuvres. Defaults: 2 deg (step), 3 deg (sine lane change),
     5 A (sine with dwell, A from :func:`steer_for_lateral_acceleration` at 0.3 g),
     A over 10 s (ramp).
+
+    Examples
+    --------
+    >>> from evstab.plants import load_vehicle
+    >>> from evstab.plants.maneuvers import make_maneuver
+    >>> m = make_maneuver("step-steer", load_vehicle("compact-ev"), 60 / 3.6)
+    >>> m.name, m.duration, round(m.speed * 3.6)
+    ('step-steer', 6.0, 60)
     """
     deg = np.pi / 180.0
     if name == "sine-lane-change":

@@ -317,6 +317,12 @@ def bundled_vehicles() -> dict[str, str]:
     -------
     dict of str to str
         File name (what :func:`load_vehicle` takes) -> the file's ``[meta] name``.
+
+    Examples
+    --------
+    >>> from evstab.plants import bundled_vehicles
+    >>> sorted(bundled_vehicles())
+    ['commonroad-1', 'commonroad-2', 'commonroad-3', 'compact-ev', 'micro-ev', 'sedan-000']
     """
     out = {}
     for entry in sorted(resources.files("evstab.plants").joinpath("data").iterdir(), key=lambda e: e.name):
@@ -344,6 +350,13 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
     ParameterError
         The file is missing, not TOML, lacks a required key, or a value is out of its range or
         against physics; the message names the file, the key, the value and the bound.
+
+    Examples
+    --------
+    >>> from evstab.plants import load_vehicle
+    >>> p = load_vehicle("compact-ev")
+    >>> p.mass, round(p.wheelbase, 3), p.cornering_stiffness_front  # kg, m, N/rad per tyre
+    (1550.0, 2.6, 52000.0)
     """
     key = str(name_or_path)
     data = resources.files("evstab.plants").joinpath("data")

@@ -145,6 +145,18 @@ def simulate(params: VehicleParams, plant: str | PlantModel, maneuver: Maneuver,
     ------
     SimulationError
         The plant left what it can represent (``RolloverError``: the car rolled over).
+
+    Examples
+    --------
+    A 2 deg step steer at 60 km/h on the linear single-track plant settles at its steady state
+    (:func:`plants.bicycle.steady_state_gains`: 10.217 deg/s):
+
+    >>> import numpy as np
+    >>> import evstab
+    >>> p = evstab.load_vehicle("compact-ev")
+    >>> run = evstab.simulate(p, "bicycle", evstab.make_maneuver("step-steer", p, 60 / 3.6))
+    >>> len(run.t), round(float(np.degrees(run.truth["yaw_rate"][-1])), 3)
+    (6000, 10.217)
     """
     model, params, nominal, disturbances, sensors = _setup(plant, params, nominal, disturbances, sensors, dt)
     n = int(round(maneuver.duration / dt))
