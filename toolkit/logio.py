@@ -304,7 +304,7 @@ def check_steer(log: DriveLog, wheelbase: float, understeer: float = 0.0) -> Non
     has no ``ay``) below 3 m/s^2, is about 1 (a wrong nominal model moves it by tens of %); from 5 to 40 the
     column holds the hand-wheel angle (steering ratios are 10-20). Judged on 200 such rows or more, and only
     when the slope's standard error is below a tenth of it."""
-    t, v, r, steer = log["t"], np.abs(log["speed"]), log["yaw_rate"], log["steer"]
+    v, r, steer = np.abs(log["speed"]), log["yaw_rate"], log["steer"]
     ay = log["ay"] if "ay" in log and np.any(np.isfinite(log["ay"])) else v * r
     ok = (v > 3.0) & (np.abs(r) > 0.02) & (np.abs(ay) < 3.0) & np.isfinite(steer) & np.isfinite(ay)
     if ok.sum() < 200:

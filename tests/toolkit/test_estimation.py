@@ -297,10 +297,10 @@ def test_known_gps_latency_is_compensated():
     p = load_vehicle("compact-ev")
     man = make_maneuver("sine-lane-change", p, 60 / 3.6, 5 * DEG)
     log = simulate(p, "two-track", man, sensors=SensorConfig(gps_latency=0.1), seed=4).log_columns()
-    for control, ratio in ((True, 0.3), (False, 0.7)):
+    for ecu, ratio in ((True, 0.3), (False, 0.7)):
         errs = {}
         for lat in (0.0, 0.1):
-            d = design_filter("dakf", p, latency=lat, control=control)
+            d = design_filter("dakf", p, latency=lat, control=ecu)
             e = run_estimator(d, log)
             errs[lat] = np.sqrt(np.mean((e["beta"] - log["beta_true"])[2000:] ** 2))
         # the ECU's filter: measured 0.106 vs 0.814 deg RMS (ratio 0.13); the consistent default trusts its
