@@ -8,6 +8,7 @@ expected; nothing half-written is left behind.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import sys
 
@@ -146,7 +147,6 @@ def cmd_estimate(args) -> int:
         if not d.bias:
             raise EvstabError(f"'{args.method}' has no gyro-bias state: --bias-learn-rate goes with dakf, amrkf, "
                               f"kf-bias, mbkf or double-layer")
-        import dataclasses
         d = dataclasses.replace(d, noise=dataclasses.replace(d.noise, bias_learn_rate=args.bias_learn_rate))
     if args.tune:
         return _tune_noise(args, d, log)

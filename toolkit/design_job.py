@@ -238,6 +238,7 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
     """Time responses at 80 km/h: the standard manoeuvres on mu 1 and mu 0.45, and on
     :data:`LIMIT_RESPONSE_MU` the limit set's step steer, where the controller acts; no control and each
     design (``tick``, optional: called after each friction's runs)."""
+    tick = tick or (lambda: None)
     from .closed_loop import program
     from .simulator import simulate
     rows = []
@@ -266,8 +267,7 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
                     rows.append({"mu": mu, "maneuver": man.name, "controller": label, "t": float(t[k]),
                                  "yaw_rate": float(yr[k]), "beta": float(b[k]), "yaw_rate_ref": float(ref[k]),
                                  "beta_ref": float(bref[k]), "steer": float(st[k]), "yaw_moment": float(nz[k])})
-        if tick is not None:
-            tick()
+        tick()
     return rows
 
 
@@ -418,7 +418,7 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
     summary["tuned_is_paper"] = all(getattr(tuned, k) == getattr(paper, k) for k in sw.DesignPoint.TUNED)
     summary["limits"] = _limit_summary(limit_rows)
     points = [paper, tuned]
-    bar = sw._progress(len(points) * (2 + len(SPEEDS_KMH)) + len(RESPONSE_MUS), progress,
+    bar = sw.progress_bar(len(points) * (2 + len(SPEEDS_KMH)) + len(RESPONSE_MUS), progress,
                        "margins, analysis and responses", "step")
 
     def margins_of(pt):

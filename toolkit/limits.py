@@ -140,12 +140,12 @@ def run_limits(cfg, point=None, cases: list[LimitCase] | None = None, a_cache: d
                name: str | None = None, progress: bool = False, label: str | None = None) -> list[dict]:
     """:func:`run_case` for every case (default :func:`limit_cases` of ``cfg.plant``); ``progress``: a bar on
     stderr, named ``label`` (default the design's name)."""
-    from .sweep import _progress
+    from .sweep import progress_bar
     a_cache = {} if a_cache is None else a_cache
     cases = cases or limit_cases(cfg.plant)
     label = label or name or ("no control" if point is None else getattr(point, "name", "the design"))
     rows = []
-    with _progress(len(cases), progress, f"limit manoeuvres, {label}", "case") as bar:
+    with progress_bar(len(cases), progress, f"limit manoeuvres, {label}", "case") as bar:
         for c in cases:
             rows.append(run_case(cfg, c, point, a_cache, name))
             bar.update(1)

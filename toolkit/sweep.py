@@ -380,7 +380,7 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
     width = native_width()
     batches = _batches(list(cases), -(-max(1, batch) // width) * width)
     results: list[list[dict]] = [None] * len(batches)  # type: ignore[list-item]
-    bar = _progress(len(cases), progress)
+    bar = progress_bar(len(cases), progress)
     if executor == "local":
         workers = workers or os.cpu_count() or 1
         if workers == 1:
@@ -429,8 +429,9 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
     return [row for rs in results for row in rs]
 
 
-def _progress(total: int | None, enabled: bool, desc: str = "sweep", unit: str = "case"):
-    """A progress bar on stderr (``total`` None: a count without an end)."""
+def progress_bar(total: int | None, enabled: bool, desc: str = "sweep", unit: str = "case"):
+    """A progress bar on stderr (``total`` None: a count without an end), as every phase of the design job
+    shows one."""
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, leave=False)
 

@@ -160,8 +160,8 @@ def _forward_step(spec, k: int) -> ca.Function:
 
 FORWARD_CFLAGS = ("-O1",) + lanes_mod.CFLAGS[1:]
 """The forward-mode kernel is large (56k instructions for the two-track loop, 86k for the multi-body
-car's): at -O1 gcc compiles it in half the time of -O3 and it runs a little slower (measured: docs/internals.md, compiled kernels); the
-same IEEE arithmetic either way."""
+car's): at -O1 gcc compiles it in half the time of -O3 and it runs a little slower (measured:
+docs/internals.md, compiled kernels); the same IEEE arithmetic either way."""
 
 
 FORWARD_WINDOW = 1024
@@ -481,11 +481,9 @@ def tune(cfg: SweepConfig, cases: list[Case], start: DesignPoint | None = None, 
     n_d = len(disp)
     d_parts = [list(range(k, n_d, workers)) for k in range(workers)] if pool else [list(range(n_d))]
 
-    from tqdm import tqdm
     # a count without an end: IPOPT's line searches evaluate an iteration more than once, and every start runs
     # up to max_iter iterations
-    bar = tqdm(total=None, desc=f"tuning ({starts} IPOPT starts of up to {max_iter} iterations)", unit="eval",
-               disable=not progress, leave=False)
+    bar = sweep.progress_bar(None, progress, f"tuning ({starts} IPOPT starts of up to {max_iter} iterations)", "eval")
 
     def evaluate(phi):
         key = tuple(np.round(phi, 15))
