@@ -6,8 +6,11 @@ the model-following law of seed 003 acts only when the car needs it.
 
 * **Friction on board** (:func:`friction_estimate`). The ECU is not told the road. It compares
   the measured lateral acceleration with the linear model's demand for the driver's steer,
-  ``a_lin = v gamma_ss(delta)``: when the demand is at least ``saturation_ay_min`` and the car
-  delivers less than ``saturation_ratio`` of it, the tyres are saturated and the friction is what
+  ``a_lin = v gamma_ss(delta)`` (the smaller of the demand now and lagged by ``demand_tau``, and
+  only while both and the car's lateral acceleration have one sign: through a reversal of the steer
+  the car is behind the demand without being saturated): when the demand is at least
+  ``saturation_ay_min`` and the car delivers less than ``saturation_ratio`` of it, the tyres are
+  saturated and the friction is what
   the car delivers, ``|a_y| / (peak_ratio g)`` (a saturated car sustains about 0.95 of mu g); the
   estimate falls to that with time constant ``mu_tau_down``, otherwise it recovers towards
   ``mu_max`` with ``mu_tau_up``, and it is never below what the car is using right now. The
@@ -76,7 +79,12 @@ def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NU
     a_lin = o.fabs(demand_next)
     a = o.fabs(ay)
     delivered = a / (d.peak_ratio * G)
-    saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin)
+    # the demand judged: the smaller of the linear demand now and lagged, on the lagged one's side (0 where
+    # they differ in sign), and only while the car turns that way too: through a reversal of the steer
+    # the car is behind both without being saturated
+    now = speed * gamma_ss_unlimited
+    a_lin = o.fmax(o.fmin(o.if_else(demand_next >= 0.0, now, -now), a_lin), 0.0)
+    saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin) * (ay * demand_next > 0.0)
     target = o.if_else(saturated > 0.5, delivered, d.mu_max)
     tau = o.if_else(target < mu_est, d.mu_tau_down, d.mu_tau_up)
     mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0)

@@ -137,3 +137,24 @@ def test_phase_plane_guard_acts_against_the_slide_and_only_outside_its_region():
     z0 = sup.initial_state(d)
     zn, steer, nz, _ = sup.supervise(d, z0, 20.0, 0.0, 0.0, 1.0, 0.0, 0.02, 0.02, 0.0, 1e5, dt, beta_rate=0.05)
     assert zn["active"] == 0.0 and steer == 0.02 and nz == 0.0
+
+
+@pytest.mark.parametrize("now, lagged, ay, saturated", [
+    # a steady demand of 5 m/s^2: saturated below 80 % of it (4 m/s^2), not above
+    (5.0, 5.0, 3.99, True), (5.0, 5.0, 4.01, False),
+    # the demand now below the lagged one: judged against the smaller, 3 m/s^2 (80 %: 2.4)
+    (3.0, 5.0, 2.39, True), (3.0, 5.0, 2.41, False),
+    # a reversal (the demand now on the other side): no evidence, however little the car delivers
+    (-5.0, 5.0, 0.5, False), (-5.0, 5.0, -0.5, False),
+    # the car still turning the other way: no evidence
+    (5.0, 5.0, -0.5, False),
+    # below saturation_ay_min (2 m/s^2) nothing is judged
+    (1.9, 1.9, 0.5, False), (-5.0, -5.0, -3.99, True)])
+def test_friction_evidence_only_where_demand_and_car_agree(now, lagged, ay, saturated):
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    assert (d.saturation_ratio, d.saturation_ay_min) == (0.8, 2.0)
+    speed, dt = 20.0, 1e-9  # a period short enough that the lagged demand does not move (by 1e-8 m/s^2)
+    mu_next, _, demand_next = sup.friction_estimate(d, 1.0, lagged, speed, ay, now / speed, dt)
+    assert demand_next == pytest.approx(lagged, abs=1e-7)
+    # saturated: the estimate moves towards what the car delivers (< 1), else it stays at mu_max
+    assert (mu_next < 1.0) == saturated

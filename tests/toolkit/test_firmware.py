@@ -42,6 +42,16 @@ needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine"
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 SANITIZE = ["-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
 TOL = {"float64": 1e-9, "float32": 1e-4}
+
+
+def _commands_close(actual, desired, atol, shift):
+    """``actual`` within ``atol`` of ``desired``, plus ``shift`` times the largest ``|desired|`` (a ramp of the
+    law's authority a period apart: see the callers)."""
+    actual, desired = np.asarray(actual, float), np.asarray(desired, float)
+    bound = atol + shift * np.max(np.abs(desired))
+    bad = np.flatnonzero(~(np.abs(actual - desired) <= bound))
+    assert bad.size == 0, f"{bad.size} samples differ by more than {bound:g}, first at {bad[0]}: " \
+                          f"{actual[bad[0]]:g} against {desired[bad[0]]:g}"
 MU = 0.8
 
 
@@ -160,15 +170,19 @@ def test_exported_c_equals_replay_and_estimate(firmware, design_dir, ecu, which,
     col = OUTPUTS.columns(Y)
     tol = TOL[precision]
     nz_tol = tol * 2 * ecu.controller.params.cornering_stiffness_front * ecu.controller.params.lf
+    # float32 may cross a threshold of the law (activation, a dead band) a period before or after float64
+    # (docs/firmware.md): the law's authority then ramps a period apart, by a blend step (dt / blend_time,
+    # 1 %) of the law's command, at most of the run's largest command; float64 none
+    shift = ecu.controller.dt / ecu.controller.blend_time if precision == "float32" else 0.0
     assert len(Y) == len(rep)
     np.testing.assert_allclose(col["beta"], est["beta"], rtol=0, atol=tol)
     np.testing.assert_allclose(col["beta"], rep["beta"], rtol=0, atol=tol)
     np.testing.assert_allclose(col["yaw_rate"], rep["yaw_rate"], rtol=0, atol=tol)
-    np.testing.assert_allclose(col["steer_cmd"], rep["steer_cmd"], rtol=0, atol=tol)
-    np.testing.assert_allclose(col["yaw_moment_cmd"], rep["yaw_moment_cmd"], rtol=0, atol=nz_tol)
+    _commands_close(col["steer_cmd"], rep["steer_cmd"], tol, shift)
+    _commands_close(col["yaw_moment_cmd"], rep["yaw_moment_cmd"], nz_tol, shift)
     torque_tol = nz_tol * ecu.wheel_radius / ecu.track_rear  # T = N_z R_w / t_r
-    np.testing.assert_allclose(col["torque_rr"], rep["torque_rr"], rtol=0, atol=torque_tol)
-    np.testing.assert_allclose(col["torque_rl"], rep["torque_rl"], rtol=0, atol=torque_tol)
+    _commands_close(col["torque_rr"], rep["torque_rr"], torque_tol, shift)
+    _commands_close(col["torque_rl"], rep["torque_rl"], torque_tol, shift)
     np.testing.assert_array_equal(col["gps_used"], rep["gps_used"])
     # the sanitizer build computes the same numbers (no undefined behaviour changes a result)
     np.testing.assert_allclose(Y_san, Y, rtol=0, atol=tol)
@@ -192,9 +206,10 @@ def test_exported_c_equals_the_simulators_controller(firmware, design_dir, ecu, 
     c = res.commands
     tol = TOL[precision]
     nz_tol = tol * 2 * ecu.controller.params.cornering_stiffness_front * ecu.controller.params.lf
+    shift = ecu.controller.dt / ecu.controller.blend_time if precision == "float32" else 0.0  # as above
     np.testing.assert_allclose(col["beta"], c["beta_est"], rtol=0, atol=tol)
-    np.testing.assert_allclose(col["steer_cmd"], c["steer_cmd"], rtol=0, atol=tol)
-    np.testing.assert_allclose(col["yaw_moment_cmd"], c["yaw_moment_cmd"], rtol=0, atol=nz_tol)
+    _commands_close(col["steer_cmd"], c["steer_cmd"], tol, shift)
+    _commands_close(col["yaw_moment_cmd"], c["yaw_moment_cmd"], nz_tol, shift)
     np.testing.assert_allclose(col["yaw_rate_ref"], c["yaw_rate_ref"], rtol=0, atol=tol)
     # the run exercised the controller: commands well above the tolerances, the motors hit their limit
     assert np.abs(c["yaw_moment_cmd"]).max() > 1000 and np.abs(c["steer_cmd"]).max() > 0.01
