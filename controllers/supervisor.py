@@ -75,15 +75,14 @@ def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NU
     """``(mu_next, use, demand_next)``: the friction estimate after this period, the friction use
     ``|a_y| / (mu g)`` and the lagged linear demand."""
     k = 1.0 - o.exp(-dt / d.demand_tau)
-    demand_next = demand + (speed * gamma_ss_unlimited - demand) * k
-    a_lin = o.fabs(demand_next)
+    now = speed * gamma_ss_unlimited
+    demand_next = demand + (now - demand) * k
     a = o.fabs(ay)
     delivered = a / (d.peak_ratio * G)
     # the demand judged: the smaller of the linear demand now and lagged, on the lagged one's side (0 where
     # they differ in sign), and only while the car turns that way too: through a reversal of the steer
     # the car is behind both without being saturated
-    now = speed * gamma_ss_unlimited
-    a_lin = o.fmax(o.fmin(o.if_else(demand_next >= 0.0, now, -now), a_lin), 0.0)
+    a_lin = o.fmax(o.fmin(o.if_else(demand_next >= 0.0, now, -now), o.fabs(demand_next)), 0.0)
     saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin) * (ay * demand_next > 0.0)
     target = o.if_else(saturated > 0.5, delivered, d.mu_max)
     tau = o.if_else(target < mu_est, d.mu_tau_down, d.mu_tau_up)
