@@ -30,6 +30,11 @@ the model-following law of seed 003 acts only when the car needs it.
   ahead of yaw-rate tracking.
 * **Slip control** (:func:`slip_authority`): the yaw moment is withdrawn while a rear wheel slips
   beyond ``slip_max``, so it never spins or locks a rear wheel.
+* **Gust channel** (:func:`gust_moment`): while the driver goes straight and the law is off, a yaw
+  moment on the yaw-rate and course-rate errors (gyro and accelerometer) where both see the car leave
+  the driver's path, beyond a narrow band, rejects a crosswind or a split-friction pull, which stay
+  inside the law's activation band. It reads no sideslip estimate (a lateral force the model does not
+  know makes that estimate wrong), and no single wrong sensor makes it act.
 * **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
   ``steer_authority`` and its rate to ``steer_authority_rate``, as an active front steering
   superposition gear allows; the ECU itself knows when it limited a command (its own limit flags
@@ -53,6 +58,8 @@ STATE = Layout("supervisor state", [
     Signal("ay_demand", "m/s^2", "the linear model's lateral-acceleration demand, lagged"),
     Signal("slip_authority", "-", "the yaw moment's authority left by the rear wheels' slip, 0-1"),
     Signal("slip_lag", "-", "the worse rear wheel's slip, lagged"),
+    Signal("gust_yaw_error", "rad/s", "the gust channel's yaw-rate error, low-passed"),
+    Signal("gust_rate", "rad/s", "the kinematic sideslip rate a_y / v - r, low-passed for the gust channel"),
 ])
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
@@ -67,7 +74,8 @@ def initial_state(d, o=NUMPY):
     a calibration symbol)."""
     v = STATE.pack(o=o, active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
                    mu_est=d.mu_max if o is not NUMPY else float(d.mu_max), steer_saturated=0.0,
-                   yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0)
+                   yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0, gust_yaw_error=0.0,
+                   gust_rate=0.0)
     return list(v) if o is NUMPY else v
 
 
@@ -129,6 +137,42 @@ def slip_authority(d, k, slip_lag, speed, omega_rl, omega_rr, wheel_radius, dt, 
     target = o.fmin(o.fmax((d.slip_max - predicted) / o.fmax(d.slip_max - onset, 1e-9), 0.0), 1.0)
     step = o.fmin(o.fmax(target - k, -dt / d.slip_cut_time), dt / d.slip_recover_time)
     return o.fmin(o.fmax(k + step, 0.0), 1.0), lag_next
+
+
+def straight_share(d, demand_now, demand_lagged, o=NUMPY):
+    """How straight the driver goes, 0-1: 1 while the linear lateral-acceleration demand and its change
+    ``|a_now| + |a_now - a_lagged|`` are below ``gust_demand``, falling linearly to 0 at twice it."""
+    x = (o.fabs(demand_now) + o.fabs(demand_now - demand_lagged)) / o.fmax(d.gust_demand, 1e-9)
+    return o.fmin(o.fmax(2.0 - x, 0.0), 1.0)
+
+
+def gust_moment(d, lags, yaw_rate_ref, yaw_rate, beta_rate, straight, speed, nz_limit, dt, o=NUMPY):
+    """``(nz, lags_next)``: the gust channel's yaw moment [N m] and its low-passed errors
+    ``(yaw-rate error, kinematic sideslip rate)``.
+
+    Two errors from two sensors, each against the rate of turn the driver's steer asks of the linear
+    model: the yaw-rate error ``e_r = r_ref - r`` (the gyro) and the course-rate error ``e_c = r_ref -
+    a_y / v = e_r - beta'`` (the accelerometer, with the kinematic sideslip rate ``beta' = a_y / v -
+    r``), both through first-order lags of ``gust_tau``. The channel acts only while both are beyond
+    ``gust_deadband`` on one side: a push that turns the car and moves it sideways off the driver's
+    path shows in both, a wrong gyro or accelerometer in one. It then acts on ``e = e_r -
+    gust_course_share beta'`` beyond the band: ``I_z gust_gain`` times the excess, times
+    :func:`straight_share`, within ``gust_nz_max`` and the rear tyres' ``nz_limit``; 0 below
+    ``min_speed``. Positive errors: the car turns right of the path the driver asks for, a positive
+    (left) moment."""
+    k = o.fmin(dt / d.gust_tau, 1.0)
+    e_r = lags[0] + (yaw_rate_ref - yaw_rate - lags[0]) * k
+    rate = lags[1] + (beta_rate - lags[1]) * k
+    e_c = e_r - rate
+    band = d.gust_deadband
+    e = e_r - d.gust_course_share * rate
+    # the two agree: one sign, and the smaller beyond half the band (whole from the band on)
+    least = o.fmin(o.fabs(e_r), o.fabs(e_c))
+    agree = o.fmin(o.fmax(2.0 * least / o.fmax(band, 1e-12) - 1.0, 0.0), 1.0) * (e_r * e_c > 0.0)
+    excess = agree * (e - o.fmin(o.fmax(e, -band), band))
+    nz = d.params.yaw_inertia * d.gust_gain * excess * straight * (speed >= d.min_speed)
+    lim = o.fmin(d.gust_nz_max, nz_limit)
+    return o.fmin(o.fmax(nz, -lim), lim), (e_r, rate)
 
 
 def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):

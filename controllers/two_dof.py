@@ -141,6 +141,23 @@ class TwoDofDesign:
     """Steer correction per unit of phase-plane excess [rad/rad]."""
     guard_share: float = 0.0
     """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
+    gust_deadband: float = np.deg2rad(0.3)
+    """Yaw-rate and course-rate error [rad/s] beyond which the gust channel acts while the driver goes
+    straight (:func:`controllers.supervisor.gust_moment`)."""
+    gust_gain: float = 80.0
+    """Gust channel's yaw moment per rad/s of error beyond its band, as a yaw acceleration [1/s] (times I_z)."""
+    gust_nz_max: float = 2000.0
+    """Largest yaw moment [N m] of the gust channel (never above what the rear tyres' grip allows)."""
+    gust_course_share: float = 0.6
+    """Share of the kinematic sideslip rate ``a_y / v - r`` in the error the gust channel acts on: 1 makes
+    it the course-rate error ``r_ref - a_y / v`` (a gust pushes the car sideways as much as it turns it),
+    0 the yaw-rate error. Below 1 because the accelerometer also reads the body's roll: at 1 the
+    channel's moment swings at about 2 Hz on the multi-body cars (docs/controller.md)."""
+    gust_tau: float = 0.05
+    """Low-pass time constant [s] of the gust channel's errors (the sensors' noise)."""
+    gust_demand: float = 0.15
+    """The driver goes straight while the linear demand and its change are below this [m/s^2]: the gust
+    channel has its whole authority up to it and none from twice it."""
     rear_grip_share: float = 0.5
     """Share of the rear tyres' remaining grip (friction circle less the lateral use) the yaw moment
     may take: differential torque costs rear side force."""

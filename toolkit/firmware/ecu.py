@@ -139,6 +139,15 @@ _CONTROLLER_CAL = (
     ("phase_gain_nz", "1/s^2", 0.0, 1e4, "yaw moment per unit phase-plane excess, as yaw acceleration (times I_z)"),
     ("phase_gain_steer", "-", 0.0, 100.0, "steer correction per unit phase-plane excess"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
+    ("gust_deadband", "rad/s", 0.0, 1.0,
+     "yaw- and course-rate error beyond which the gust channel acts in straight driving"),
+    ("gust_gain", "1/s", 0.0, 1e3,
+     "gust channel's yaw moment per rad/s of error beyond its band, as yaw acceleration (times I_z)"),
+    ("gust_nz_max", "N m", 0.0, 1e5, "largest yaw moment of the gust channel"),
+    ("gust_course_share", "-", 0.0, 1.0,
+     "share of the kinematic sideslip rate in the gust channel's error (1: course rate)"),
+    ("gust_tau", "s", 0.001, 10.0, "low-pass time constant of the gust channel's errors"),
+    ("gust_demand", "m/s^2", 0.0, 20.0, "linear demand (and its change) below which the driver goes straight"),
     ("peak_ratio", "-", 0.1, 1.0, "lateral acceleration of a saturated car as a share of mu g"),
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
     ("mu_tau_up", "s", 0.001, 100.0, "time constant of the friction estimate recovering"),
@@ -396,8 +405,14 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     k_slip, slip_lag = sup_mod.slip_authority(c, sup_st.slip_authority, sup_st.slip_lag, g["speed"],
                                               g["wheel_speed_rl"], g["wheel_speed_rr"], d.wheel_radius,
                                               lag_dt, o)
-    nz_cmd = nz_cmd * k_slip
-    sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag)
+    # the gust channel, while the driver goes straight, as the law's authority blends out
+    straight = sup_mod.straight_share(c, g["speed"] * gamma_lin, demand, o)
+    nz_gust, (gust_yaw_error, gust_rate) = sup_mod.gust_moment(
+        c, (sup_st.gust_yaw_error, sup_st.gust_rate), law_st.yaw_rate_ref, est["yaw_rate"], beta_rate, straight,
+        g["speed"], nz_limit, lag_dt, o)
+    nz_cmd = (nz_cmd + (1.0 - sup_n["blend"]) * nz_gust) * k_slip
+    sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag,
+                 gust_yaw_error=gust_yaw_error, gust_rate=gust_rate)
     # the law's integrators run only while it has authority
     law_n = ctl_mod.STATE.as_dict(z_law_n)
     law_n["xi_beta"], law_n["xi_yaw_rate"] = law_n["xi_beta"] * law_on, law_n["xi_yaw_rate"] * law_on
