@@ -21,7 +21,8 @@ ECU in the loop (not told the road) and without control, and judged by :func:`ju
 
 The cases (:func:`cases`): step steer (J-turn) at 60-130 km/h on mu 0.3-1.0; a friction drop in a
 steady turn; split friction in a straight-line acceleration and in a lane change; lift-off in a
-turn; ISO 3888-2 obstacle avoidance and an 18 m slalom with a human driver (reaction delay and
+turn; the ISO 3888-1 double lane change at 70 and 90 km/h on mu 0.5 and 0.7 (the path-following
+driver); ISO 3888-2 obstacle avoidance and an 18 m slalom with a human driver (reaction delay and
 neuromuscular lag: :class:`plants.paths.HumanDriver`), entry speed stepped up; sine with dwell at
 60-120 km/h; a crosswind gust; smooth random steering below 4 m/s^2; a car loaded at the rear (the
 nominal file unchanged, the two-track only). The step steers begin :data:`STEP_START` s into the run,
@@ -39,7 +40,7 @@ import numpy as np
 from evstab.plants import G, VehicleParams, is_multibody
 from evstab.plants.disturbances import Disturbances, Friction, Wind
 from evstab.plants.errors import ManeuverError
-from evstab.plants.maneuvers import (Maneuver, iso3888_2, random_steer, sine_lane_change, sine_with_dwell, slalom,
+from evstab.plants.maneuvers import (Maneuver, iso3888_1, iso3888_2, random_steer, sine_lane_change, sine_with_dwell, slalom,
                                      step_steer, steer_for_lateral_acceleration, vehicle_width)
 
 HARM_FACTOR = 1.1
@@ -78,7 +79,7 @@ class Case:
 
     kind: str
     """``step``, ``friction-drop``, ``split-mu-accel``, ``split-mu-lane-change``, ``lift-off``,
-    ``iso3888-2``, ``slalom``, ``sine-with-dwell``, ``crosswind``, ``random-steer``, ``loaded``."""
+    ``iso3888-1``, ``iso3888-2``, ``slalom``, ``sine-with-dwell``, ``crosswind``, ``random-steer``, ``loaded``."""
     speed_kmh: float
     mu: float = 1.0
     mu_after: float | None = None
@@ -117,6 +118,7 @@ def cases(plant: str = "two-track") -> list[Case]:
     out += [Case("friction-drop", 80, 1.0, 0.3), Case("friction-drop", 80, 0.8, 0.5)]
     out += [Case("split-mu-accel", 30, 1.0, 0.2), Case("split-mu-lane-change", 80, 1.0, 0.3)]
     out += [Case("lift-off", 80, mu) for mu in (1.0, 0.5)]
+    out += [Case("iso3888-1", kmh, mu) for kmh in (70, 90) for mu in (0.5, 0.7)]
     out += [Case("iso3888-2", kmh, 1.0) for kmh in (50, 60, 70, 80)]
     out += [Case("slalom", kmh, 1.0) for kmh in (40, 50, 60)]
     out += [Case("sine-with-dwell", kmh, 1.0) for kmh in (60, 100, 120)]
@@ -176,6 +178,8 @@ def run_setup(case: Case, p: VehicleParams) -> tuple[Maneuver, Disturbances, Veh
         steer = step_steer(v, steer_for_lateral_acceleration(p, v, 0.7 * case.mu * G), start=0.5, rise=1.0,
                            duration=7.0)
         man = dataclasses.replace(steer, name="lift-off", coast_from=3.5, events={"lift_off": 3.5})
+    elif case.kind == "iso3888-1":
+        man = iso3888_1(v, width)
     elif case.kind == "iso3888-2":
         man = iso3888_2(v, width)
     elif case.kind == "slalom":
