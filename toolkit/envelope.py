@@ -40,8 +40,8 @@ import numpy as np
 from evstab.plants import G, VehicleParams, is_multibody
 from evstab.plants.disturbances import Disturbances, Friction, Wind
 from evstab.plants.errors import ManeuverError
-from evstab.plants.maneuvers import (Maneuver, iso3888_1, iso3888_2, random_steer, sine_lane_change, sine_with_dwell, slalom,
-                                     step_steer, steer_for_lateral_acceleration, vehicle_width)
+from evstab.plants.maneuvers import (Maneuver, iso3888_1, iso3888_2, random_steer, sine_lane_change, sine_with_dwell,
+                                     slalom, step_steer, steer_for_lateral_acceleration, vehicle_width)
 
 HARM_FACTOR = 1.1
 """Where the car alone passes, the controlled car's peak sideslip may exceed the uncontrolled one's

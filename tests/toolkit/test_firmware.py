@@ -52,6 +52,8 @@ def _commands_close(actual, desired, atol, shift):
     bad = np.flatnonzero(~(np.abs(actual - desired) <= bound))
     assert bad.size == 0, f"{bad.size} samples differ by more than {bound:g}, first at {bad[0]}: " \
                           f"{actual[bad[0]]:g} against {desired[bad[0]]:g}"
+
+
 MU = 0.8
 
 
