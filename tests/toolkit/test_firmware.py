@@ -422,7 +422,9 @@ def test_ecu_signs_follow_iso_8855(ecu):
     g = dict(zip(INPUTS, range(len(INPUTS))))
     u[g["dt"]], u[g["speed"]], u[g["gps_hdop"]], u[g["gps_sats"]], u[g["mu"]] = 1e-3, 20.0, 1.0, 10, 1.0
     u[g["wheel_speed_rl"]] = u[g["wheel_speed_rr"]] = 20.0 / ecu.wheel_radius  # rolling, no slip
-    u[g["yaw_rate"]] = 0.05
+    # a steady turn: the lateral acceleration v r that goes with the yaw rate (a gyro that holds its value
+    # while the accelerometer disagrees is stuck for the input guard)
+    u[g["yaw_rate"]], u[g["ay"]] = 0.05, 20.0 * 0.05
     z = ecu.initial_state()
     for _ in range(50):
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))
@@ -430,7 +432,7 @@ def test_ecu_signs_follow_iso_8855(ecu):
     # the driver steers left and the car does not turn (understeer): the law acts, turning left
     # (the steer applied over 10 ms: an instant 1 deg step would be 17 rad/s, which the input guard takes for
     # a fault; toolkit.firmware.guard)
-    u[g["yaw_rate"]] = 0.0
+    u[g["yaw_rate"]], u[g["ay"]] = 0.0, 0.0
     for k in range(300):
         u[g["steer_cmd_driver"]] = np.radians(1.0) * min((k + 1) / 10, 1.0)
         z, y = ecu_step(ecu, z, u, ecu.schedule_inputs(u[g["speed"]]))

@@ -217,3 +217,86 @@ def test_a_calibration_outside_its_limits_takes_the_authority():
     cal[names.index("k_beta")] = 100.0
     zg, _ = ecu_guard(ecu, ecu.initial_state(), u, NUMPY, cal)
     assert gm.STATE.as_dict(zg)["bad_samples"] == 0.0
+
+
+V = 16.7
+BAND = S.consistency_ay + S.consistency_rate * V
+"""[m/s^2] Where ``|a_y - v r|`` starts to disagree at 16.7 m/s: 0.3 + 0.02 x 16.7 = 0.634."""
+
+
+def _held(r, ay, n, speed=V):
+    """``n`` periods of the yaw rate held at ``r`` from the first (which has no last value to check against) with
+    the lateral acceleration ``ay``."""
+    seq = [_inputs(speed) for _ in range(n)]
+    for u in seq:
+        u["yaw_rate"], u["ay"] = r, ay
+    return _run(seq)
+
+
+@pytest.mark.parametrize("excess, stuck", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
+def test_a_held_yaw_rate_that_disagrees_is_stuck(excess, stuck):
+    """A yaw rate held to the bit while ``|a_y - v r|`` is just beyond the band (0.634 m/s^2 at 16.7 m/s) fails
+    from the period it has been held 20 ms (stuck_time; period k repeats the first period's value k times: k ms)
+    and reads as ``a_y / v``; 50 ms of that latch the fault (bit 8). Just inside the band it passes: a quantised
+    CAN signal in a steady turn holds its value as long as the turn lasts."""
+    r = excess * BAND / V  # a_y = 0: the disagreement is v r
+    zs, cs = _held(r, 0.0, 200)
+    assert cs[19]["yaw_rate"] == r  # held 19 ms
+    assert cs[20]["yaw_rate"] == (0.0 if stuck else r)  # held 20 ms: a_y / v = 0 when stuck
+    assert zs[-1]["bad_samples"] == (180.0 if stuck else 0.0)
+    word = [z["fault_word"] for z in zs]
+    assert word[68] == 0.0 and word[69] == (8.0 if stuck else 0.0)  # the 50th stuck period
+
+
+def test_a_quantised_yaw_rate_in_a_steady_turn_is_not_stuck():
+    """A CAN yaw rate quantised in 1.28 deg/s steps, held for 2 s in a steady 4 m/s^2 turn at 16.7 m/s: the
+    lateral acceleration is v r to within one step (0.022 rad/s x 16.7 = 0.37 m/s^2, inside the 0.634 band)."""
+    step = np.radians(1.28)
+    r = step * np.round(4.0 / V / step)
+    zs, cs = _held(r, 4.0, 2000)
+    assert abs(4.0 - V * r) > 0.1  # the quantisation is felt
+    assert all(c["yaw_rate"] == r for c in cs) and zs[-1]["bad_samples"] == 0.0
+
+
+def test_a_live_yaw_rate_that_disagrees_is_taken():
+    """In a slide the yaw rate and the lateral acceleration disagree (``a_y - v r = v beta'``): a gyro whose
+    readings move (1 mrad/s of noise) is taken however far they disagree; so is a held one below 5 m/s."""
+    rng = np.random.default_rng(0)
+    seq = [_inputs() for _ in range(300)]
+    for u in seq:
+        u["yaw_rate"], u["ay"] = 0.3 + 1e-3 * rng.standard_normal(), 1.0  # beta' = -0.24 rad/s
+    zs, cs = _run(seq)
+    assert zs[-1]["bad_samples"] == 0.0 and all(c["yaw_rate"] == u["yaw_rate"] for c, u in zip(cs, seq))
+    zs, cs = _held(0.3, 0.0, 300, speed=4.9)
+    assert zs[-1]["bad_samples"] == 0.0
+
+
+def test_a_stuck_yaw_rate_recovers_when_it_moves_again():
+    """Stuck for 0.5 s in a turn whose lateral acceleration rises, then live: the fault clears 0.2 s after the
+    first live reading (recover_time) and the filter and the law restart on that period."""
+    seq = [_inputs() for _ in range(1200)]
+    rng = np.random.default_rng(1)
+    for k, u in enumerate(seq):
+        u["ay"] = min(0.01 * k, 4.0)
+        u["yaw_rate"] = u["ay"] / V + (1e-3 * rng.standard_normal() if not 100 <= k < 600 else 0.0)
+    for u in seq[100:600]:
+        u["yaw_rate"] = seq[99]["yaw_rate"]
+    zs, cs = _run(seq)
+    word = np.array([z["fault_word"] for z in zs])
+    assert word[599] == 8.0 and word[600 + 198] == 8.0 and word[600 + 199] == 0.0
+    assert zs[600 + 199]["restart"] == 1.0
+    stuck = [k for k in range(100, 600) if cs[k]["yaw_rate"] != seq[k]["yaw_rate"]]
+    assert stuck and all(cs[k]["yaw_rate"] == pytest.approx(seq[k]["ay"] / V) for k in stuck)
+
+
+@pytest.mark.parametrize("delta, passes", [(-1e-9, True), (1e-9, False)])
+def test_a_can_yaw_rate_moves_on_by_its_message_interval(delta, passes):
+    """A yaw rate that held its value 9 ms (a 100 Hz CAN message) may move by 30 rad/s^2 x (1 + 9) ms + 0.1 rad/s
+    on the next period; a little more is a bad sample."""
+    seq = [_inputs() for _ in range(12)]
+    for u in seq[1:11]:
+        u["yaw_rate"], u["ay"] = 0.01, 0.01 * V
+    edge = 0.01 + 30.0 * 10 * DT + 0.1 + delta
+    seq[11]["yaw_rate"], seq[11]["ay"] = edge, edge * V
+    zs, cs = _run(seq)
+    assert cs[11]["yaw_rate"] == (edge if passes else 0.01)

@@ -7,8 +7,14 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   or stalls must not scale the filter's and the law's integration);
 * each physical signal (:data:`CHECKS`) against its physical range (a NaN or an infinity fails the
   range, whatever the compiler's comparison of it) and, while it is not in fault, against a
-  plausible change since its last good value: ``|x - last| <= rate * dt + step``. A sample that
-  fails is replaced by the signal's last good value and counted (``bad_samples``);
+  plausible change since its last good value: ``|x - last| <= rate * dt + step`` (the yaw rate: ``rate *
+  (dt + held)``, ``held`` the time it has read one value, so a CAN signal moves on in one step after its
+  message interval). A sample that fails is replaced by the signal's last good value and counted
+  (``bad_samples``);
+* the yaw rate against the lateral acceleration: one that has read the same value for ``stuck_time`` while
+  ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
+  fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
+  chase the yaw rate it no longer reports);
 * a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
   is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
   wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
@@ -16,7 +22,7 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
 A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
 row, recovering after :data:`GPS_RECOVER_FIXES` good ones): its bit in ``fault_word``
 (:data:`FAULT_BITS`) is set, and while it lasts the signal is read for range only (a value that
-has moved on for good is taken back once it is in range). It recovers after ``recover_time`` of
+has moved on for good is taken back once it is in range; the yaw rate also for being stuck). It recovers after ``recover_time`` of
 good samples in a row (hysteresis). While a signal the law depends on (:data:`DEGRADING`) is in
 fault, the law's authority ``k`` ramps to 0 over ``ramp_time`` (steer command to the driver's,
 yaw moment to 0); at the recovery the filter and the law restart from their initial state (a restart at
@@ -108,8 +114,25 @@ class GuardSettings:
     in that lane change (about 90 deg with 2.5 s): at the limit a law on a settling filter does less harm
     than no law."""
 
+    stuck_time: float = 0.02
+    """[s] A yaw rate that has read the same value, to the bit, this long is held (a 1 kHz gyro's noise moves it
+    every period; a CAN signal at 100 Hz holds each value 10 ms, a quantised one in a steady turn for as long as
+    the turn lasts)."""
+    consistency_ay: float = 0.3
+    """[m/s^2] The yaw rate agrees with the lateral acceleration when ``|a_y - v r| <= consistency_ay +
+    consistency_rate v`` ..."""
+    consistency_rate: float = 0.02
+    """[rad/s] ... (``a_y - v r = v beta'``: a car that does not slide turns its velocity with its body;
+    the ``v`` term takes a CAN signal's 1.28 deg/s quantisation, 0.022 rad/s, and the sideslip rate of a lane
+    change). A held yaw rate that disagrees is stuck: it fails its check and reads as ``a_y / v``. A live
+    one may disagree (a slide: ``beta'`` is what the law is there for), a held one that agrees is a quantised
+    signal in a steady turn."""
+    consistency_speed: float = 5.0
+    """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
+
     def __post_init__(self):
-        for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold"):
+        for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
+                  "consistency_ay", "consistency_rate", "consistency_speed"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
@@ -121,6 +144,8 @@ STATE = Layout("ECU guard state", [
     *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
     *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
+    Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
+    Signal("held_yaw_rate", "s", "time the yaw rate has read the same value"),
     Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
     Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
     Signal("restart", "-", "1 on the period the filter and the law restart"),
@@ -162,17 +187,39 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     bad["dt"] = 1.0 - dt_ok
     first = 1.0 - st["started"]
     nxt["started"] = 1.0 + 0.0 * dt_c
+    # the yaw rate's hold: how long it has read one value (a CAN signal between its messages, or a stuck sensor)
+    r_raw = g["yaw_rate"]
+    same = (r_raw == st["raw_yaw_rate"]) * (1.0 - first)
+    held = (st["held_yaw_rate"] + dt_c) * same
+    nxt["raw_yaw_rate"] = o.if_else(o.fabs(r_raw) < 1e30, r_raw, 0.0)
+    nxt["held_yaw_rate"] = o.fmin(held, 2.0 * s.stuck_time)
+    oks = {}
     for c in CHECKS:
         x, last, fault = g[c.name], st[f"last_{c.name}"], st[f"fault_{c.name}"]
         ok = (x >= c.lower) * (x <= c.upper)
         if c.rate is not None:
             # against the last good value; not while in fault (a signal that moved on for good comes back), nor
-            # on the first period (an ECU that starts at speed)
-            near = o.fabs(x - last) <= c.rate * dt_c + c.step
+            # on the first period (an ECU that starts at speed); the yaw rate's change over the time it held
+            # its last value (a CAN signal moves on in one step after its message interval)
+            span = dt_c + st["held_yaw_rate"] if c.name == "yaw_rate" else dt_c
+            near = o.fabs(x - last) <= c.rate * span + c.step
             ok = ok * o.fmax(near, o.fmax(fault, first))
+        oks[c.name] = ok
         clean[c.name] = o.if_else(ok, x, last)
+    # the yaw rate against the lateral acceleration: a held one that disagrees is stuck
+    v = o.fabs(clean["speed"])
+    disagree = (o.fabs(clean["ay"] - v * r_raw) > s.consistency_ay + s.consistency_rate * v) * \
+        (v >= s.consistency_speed)
+    stuck = (held >= s.stuck_time - 0.25 * dt_nominal) * disagree
+    oks["yaw_rate"] = oks["yaw_rate"] * (1.0 - stuck)
+    # a stuck yaw rate reads as the one the lateral acceleration gives (a_y / v: the car's velocity turns with its
+    # body while it does not slide; the last good value of a stuck sensor is the stuck value); any other sample
+    # not taken as the last good value
+    kinematic = clean["ay"] / o.fmax(v, s.consistency_speed)
+    clean["yaw_rate"] = o.if_else(oks["yaw_rate"], g["yaw_rate"], o.if_else(stuck, kinematic, st["last_yaw_rate"]))
+    for c in CHECKS:
         nxt[f"last_{c.name}"] = clean[c.name]
-        bad[c.name] = 1.0 - ok
+        bad[c.name] = 1.0 - oks[c.name]
     # a course fix with a non-finite course, HDOP or satellite count, or HDOP <= 0, is not a fix
     fix = g["gps_valid"] > 0.5
     fix_ok = (o.fabs(g["gps_course"]) < 1e30) * (g["gps_hdop"] > 0.0) * (g["gps_hdop"] < 1e30) * \
