@@ -23,6 +23,24 @@ def rng():
     return np.random.default_rng(20261121)
 
 
+@pytest.fixture(scope="session")
+def default_design_dir(tmp_path_factory):
+    """A design folder of compact-ev's ECU with the default filter (``dakf``, the ECU's noise) and 2-DOF law
+    on the nominal model, written directly (no design job): what the firmware tests export."""
+    import json
+
+    from evstab.controllers.two_dof import TwoDofDesign
+    from evstab.toolkit.design_job import basic_design_document
+    from evstab.toolkit.estimation import design_filter
+
+    p = load_vehicle("compact-ev")
+    doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
+                                {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}, "test fixture")
+    out = tmp_path_factory.mktemp("default_design")
+    (out / "design.json").write_text(json.dumps(doc, indent=2))
+    return out
+
+
 def progress_transcript(out):
     """Where the shared quick design run's stderr (its progress bars) is kept: beside its folder."""
     return out.parent / (out.name + "-stderr.txt")

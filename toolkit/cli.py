@@ -380,7 +380,7 @@ def cmd_export(args) -> int:
     _output_folder(args.out)
     formats = FORMATS if args.format == "all" else (args.format,)
     command = _command_line()
-    paths = export_design(args.design_dir, args.out, formats, args.precision, command)
+    paths = export_design(args.design_dir, args.out, formats, args.precision, command, fmu=args.fmu)
     print(f"exported {args.design_dir} ({args.precision}): " + ", ".join(p.name for p in paths) + f" -> {args.out}")
     return 0
 
@@ -572,6 +572,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--precision", choices=["float32", "float64"], default="float64",
                     help="floating-point type of the C code and the A2L record layouts")
     sp.add_argument("--out", required=True, help="folder to write into")
+    sp.add_argument("--fmu", action="store_true",
+                    help="also write evstab_ecu.fmu: the step as an FMI 2.0 co-simulation FMU (built with the host's C "
+                         "compiler; binary for this platform, sources inside for others)")
     sp.set_defaults(func=cmd_export)
     sp = sub.add_parser("fmvss126", help="FMVSS 126: slowly increasing steer for A, then the sine-with-dwell series")
     sp.add_argument("--vehicle", required=True, help="bundled name or TOML path (the controller's nominal model)")

@@ -6,14 +6,9 @@ The cross-compile needs Debian's gcc-arm-none-eabi and libnewlib-arm-none-eabi, 
 cppcheck; ``.ci/run`` installs them, elsewhere those tests skip and say which is missing.
 """
 
-import json
 
 import pytest
 
-from evstab.controllers.two_dof import TwoDofDesign
-from evstab.plants import load_vehicle
-from evstab.toolkit.design_job import basic_design_document
-from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.firmware import mcu
 from evstab.toolkit.firmware.export import export_design
 
@@ -57,15 +52,10 @@ def test_worst_stack_refuses_what_has_no_bound():
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    p = load_vehicle("compact-ev")
-    doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
-                                {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}, "test_mcu")
+def exported(default_design_dir, tmp_path_factory):
     root = tmp_path_factory.mktemp("mcu")
-    (root / "design").mkdir()
-    (root / "design" / "design.json").write_text(json.dumps(doc))
     for precision in ("float32", "float64"):
-        export_design(root / "design", root / precision, ("c",), precision)
+        export_design(default_design_dir, root / precision, ("c",), precision)
     return root
 
 

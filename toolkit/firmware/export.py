@@ -75,7 +75,7 @@ def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
 
 
 def export_design(design_dir, out_dir, formats=FORMATS, precision: str = "float64",
-                  command: str | None = None) -> list[Path]:
+                  command: str | None = None, fmu: bool = False) -> list[Path]:
     """Export a design folder as firmware and calibration files.
 
     Parameters
@@ -92,16 +92,26 @@ def export_design(design_dir, out_dir, formats=FORMATS, precision: str = "float6
         ``float64`` or ``float32``: the C type and the A2L record layouts.
     command : str, optional
         The command line recorded in the gain set's provenance.
+    fmu : bool
+        Also build ``evstab_ecu.fmu``, an FMI 2.0 co-simulation FMU of the step (:mod:`toolkit.firmware.fmu`;
+        needs the host's C compiler). It is built before any file is written: a failed build writes nothing.
 
     Returns
     -------
     list of pathlib.Path
         The files written.
     """
-    files = render(gain_set(design_dir, command), formats, precision)
+    doc = gain_set(design_dir, command)
+    files = render(doc, formats, precision)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
+    if fmu:
+        from .fmu import FMU_NAME, build_fmu
+        d, _, _ = gains.load_gains(doc)
+        info = {"evstab_version": doc["evstab_version"], "params_digest": doc["vehicle"]["params_digest"],
+                "vehicle": doc["vehicle"]["name"]}
+        written.append(build_fmu(d, info, precision, out / FMU_NAME))
     for name, content in files.items():
         atomic_write(out / name, lambda fh, c=content: fh.write(c), mode="wb")
         written.append(out / name)
