@@ -1,5 +1,7 @@
 """Logs recorded by other tools to the drive-log schema, through a channel map: ASAM MDF4 (asammdf),
-MATLAB ``.mat`` (scipy.io; v7.3 files through h5py) and CSV tables with their own column names.
+MATLAB ``.mat`` (scipy.io; v7.3 files through h5py), CSV tables with their own column names, and CAN traces
+(BLF, ASC; python-can) with the car's DBC (cantools; :mod:`toolkit.cantrace`): a channel is then a DBC
+signal, ``SIGNAL`` or ``MESSAGE.SIGNAL``, and ``[options] dbc`` (or ``evstab convert --dbc``) names the DBC.
 
 The channel map is a small TOML file, one table per schema column (``t`` excepted) or truth column::
 
@@ -70,7 +72,7 @@ MAPPABLE = COLUMNS + TRUTH_COLUMNS
 GPS_COLUMNS = ("gps_course", "gps_speed", "gps_hdop", "gps_sats", "gps_heading")
 ANGLE_CONVENTIONS = ("cw-from-north-deg",)
 _KEYS = {"channel", "channels", "value", "unit", "scale", "offset", "sign", "ratio", "angle", "held"}
-_OPTIONS = {"time_base", "sample_rate", "time", "time_scale"}
+_OPTIONS = {"time_base", "sample_rate", "time", "time_scale", "dbc"}
 _TRUTH_UNITS = {"beta_true": "rad", "yaw_rate_true": "rad/s", "yaw_true": "rad", "vx_true": "m/s", "vy_true": "m/s",
                 "roll_true": "rad"}
 SCHEMA_UNITS = {**{c: u for c, u, _ in SCHEMA}, **_TRUTH_UNITS}
@@ -119,8 +121,12 @@ def load_channel_map(path) -> dict:
     tscale = opts.get("time_scale", 1.0)
     if isinstance(tscale, bool) or not isinstance(tscale, (int, float)) or not (math.isfinite(tscale) and tscale > 0):
         raise LogFormatError(f"{path}: [options] time_scale = {tscale!r}: expected the time channel's unit in s (> 0)")
+    dbc = opts.get("dbc")
+    if dbc is not None and (not isinstance(dbc, str) or not dbc):
+        raise LogFormatError(f"{path}: [options] dbc = {dbc!r}: expected the path of the CAN trace's DBC file")
     return {"time_base": base, "columns": out, "source": str(path), "sample_rate": None if rate is None else
-            float(rate), "time": tch, "time_scale": float(tscale), "meta": dict(meta)}
+            float(rate), "time": tch, "time_scale": float(tscale), "meta": dict(meta),
+            "dbc": None if dbc is None else path.parent / dbc}
 
 
 def _number(where, key, v, default, nonzero=False):
@@ -308,18 +314,21 @@ def _csv_channels(path: Path, names) -> dict:
 
 
 def source_kind(path) -> str:
-    """``mdf``, ``mat`` or ``csv`` by the file name."""
+    """``mdf``, ``mat``, ``can`` (a BLF or ASC trace) or ``csv`` by the file name."""
     name = str(path).lower()
     if name.endswith((".mf4", ".mdf")):
         return "mdf"
     if name.endswith(".mat"):
         return "mat"
+    if name.endswith((".blf", ".asc")):
+        return "can"
     return "csv"
 
 
 def read_mapped(path, channel_map) -> DriveLog:
-    """A drive log (possibly a reference log without ``gps_course``) from an MDF4, MATLAB or CSV file and a
-    channel map (a path or :func:`load_channel_map`'s result)."""
+    """A drive log (possibly a reference log without ``gps_course``) from an MDF4, MATLAB or CSV file, or a CAN
+    trace (BLF, ASC) decoded with the map's DBC (:mod:`toolkit.cantrace`), and a channel map (a path or
+    :func:`load_channel_map`'s result)."""
     cmap = channel_map if isinstance(channel_map, dict) else load_channel_map(channel_map)
     path = Path(path)
     if not path.exists():
@@ -327,8 +336,11 @@ def read_mapped(path, channel_map) -> DriveLog:
     kind = source_kind(path)
     wanted = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]} |
                     ({cmap["time"]} if cmap["time"] else set()))
-    reader = {"mdf": _mdf_channels, "mat": _mat_channels, "csv": _csv_channels}[kind]
-    got = reader(path, wanted)
+    if kind == "can":
+        from .cantrace import can_channels
+        got = can_channels(path, wanted, cmap.get("dbc"))
+    else:
+        got = {"mdf": _mdf_channels, "mat": _mat_channels, "csv": _csv_channels}[kind](path, wanted)
     for col, spec in cmap["columns"].items():
         for n in spec["channels"]:
             if got.get(n) is None:

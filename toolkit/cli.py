@@ -322,8 +322,21 @@ def cmd_convert(args) -> int:
         if args.channel_map is None:
             raise EvstabError(f"{args.log}: give --map MAP.toml, the channel map that names the file's channel for "
                               f"each drive-log column (docs/formats.md)")
-        merged = read_log(args.log, None, args.channel_map).columns
+        from pathlib import Path
+
+        from .channels import load_channel_map, source_kind
+        cmap = load_channel_map(args.channel_map)
+        if args.dbc is not None:
+            if source_kind(args.log) != "can":
+                raise EvstabError(f"{args.log}: --dbc goes with a CAN trace (.blf, .asc)")
+            cmap["dbc"] = Path(args.dbc)
+        merged = read_log(args.log, None, cmap).columns
         what = f"{args.log}: {len(merged['t'])} rows"
+        if source_kind(args.log) == "can":
+            from .cantrace import frame_gaps
+            names = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]})
+            for line in frame_gaps(args.log, names, cmap["dbc"]):
+                print(f"  late frames: {line}")
     write_log_csv(args.out, merged)
     fixes = int(np.isfinite(merged["gps_course"]).sum())
     truth = [c for c in merged if c.endswith("_true")]
@@ -533,9 +546,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--trust-units", action="store_true",
                     help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.set_defaults(func=cmd_replay)
-    sp = sub.add_parser("convert", help="a log with its own channels (MDF4, MATLAB .mat, CSV; with a channel map), or "
+    sp = sub.add_parser("convert", help="a log with its own channels (MDF4, MATLAB .mat, CSV, a CAN trace with its "
+                                        "DBC; with a channel map), or "
                                         "an NMEA 0183 GNSS log and an IMU CSV, to a drive-log CSV")
-    sp.add_argument("log", nargs="?", help="log to convert (.mf4, .mat, .csv; with --map)")
+    sp.add_argument("log", nargs="?", help="log to convert (.mf4, .mat, .csv, or a CAN trace .blf/.asc with --dbc; "
+                                           "with --map)")
+    sp.add_argument("--dbc", help="the car's DBC that decodes a CAN trace (.blf, .asc); the map names DBC signals "
+                                  "(SIGNAL or MESSAGE.SIGNAL)")
     sp.add_argument("--map", "--channel-map", dest="channel_map",
                     help="TOML: the channel, unit, scale and sign of each schema column, and the time base "
                          "(docs/formats.md)")

@@ -161,8 +161,9 @@ def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_m
     (:mod:`toolkit.channels`), from an MDF4 file (``.mf4``/``.mdf``), a MATLAB file (``.mat``) or a CSV
     table with its own column names."""
     name = str(path).lower()
-    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat")):
-        kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a MATLAB"
+    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat", ".blf", ".asc")):
+        kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a CAN trace" if name.endswith((".blf", ".asc")) \
+            else "a MATLAB"
         raise LogFormatError(f"{path}: {kind} log needs a channel map (--channel-map MAP.toml) that names "
                              f"the channel of each schema column")
     if channel_map is not None:
