@@ -53,11 +53,16 @@ def test_one_bad_sample_is_replaced_and_counted_not_a_fault(name):
     good = [_inputs() for _ in range(5)]
     for k, u in enumerate(good):
         u[name] = 0.001 * k  # moving at 1 unit/s: the last good value is the previous sample's
+        if name == "speed":  # the rear wheels roll with it
+            u["wheel_speed_rl"] = u["wheel_speed_rr"] = 0.001 * k / 0.3
     for bad in (np.nan, np.inf, -np.inf, 1e6):
         seq = [dict(u) for u in good]
         seq[3][name] = bad
         zs, cs = _run(seq)
-        assert cs[3][name] == 0.002  # the last good value
+        if name == "speed":  # the rear wheels' speed stands in: this sample's, 0.003 m/s
+            assert cs[3][name] == pytest.approx(0.003, rel=1e-12)
+        else:
+            assert cs[3][name] == 0.002  # the last good value
         assert cs[4][name] == 0.004  # back at once
         assert zs[4]["bad_samples"] == 1.0 and zs[4]["fault_word"] == 0.0 and zs[4]["authority"] == 1.0
 
@@ -70,9 +75,13 @@ def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
     seq = [_inputs() for _ in range(2000)]
     for u in seq[100:600]:
         u[name] = np.nan
+        if name == "speed":  # with the wheel speeds in range they stand in for it (below)
+            u["wheel_speed_rl"] = u["wheel_speed_rr"] = np.nan
     zs, cs = _run(seq)
     word = [z["fault_word"] for z in zs]
     bit = float(2 ** gm.FAULT_BITS[name])
+    if name == "speed":  # the wheel speeds' bits too
+        bit += float(2 ** gm.FAULT_BITS["wheel_speed_rl"] + 2 ** gm.FAULT_BITS["wheel_speed_rr"])
     assert word[148] == 0.0 and word[149] == bit  # the 50th bad sample
     assert all(np.isfinite(c[name]) for c in cs)
     k = np.array([z["authority"] for z in zs])
@@ -300,3 +309,22 @@ def test_a_can_yaw_rate_moves_on_by_its_message_interval(delta, passes):
     seq[11]["yaw_rate"], seq[11]["ay"] = edge, edge * V
     zs, cs = _run(seq)
     assert cs[11]["yaw_rate"] == (edge if passes else 0.01)
+
+
+def test_the_rear_wheels_stand_in_for_a_speed_in_fault():
+    """Speed NaN for 0.5 s with both rear wheel speeds in range (18 and 22 rad/s on a 0.3 m wheel): it reads
+    as their mean times the radius, 6.0 m/s, from its first bad sample; it is named in the fault word from the
+    50th (bit 2) but the law keeps its authority (exactly 1) and nothing restarts at the recovery. With one
+    wheel speed out of range too, the authority ramps out as for any input the law depends on."""
+    seq = [_inputs() for _ in range(1000)]
+    for u in seq[100:600]:
+        u["speed"], u["wheel_speed_rl"], u["wheel_speed_rr"] = np.nan, 18.0, 22.0
+    zs, cs = _run(seq)
+    assert all(cs[k]["speed"] == pytest.approx(6.0, rel=1e-15) for k in range(100, 600))
+    assert zs[148]["fault_word"] == 0.0 and zs[149]["fault_word"] == 2.0
+    assert all(z["authority"] == 1.0 for z in zs) and [k for k, z in enumerate(zs) if z["restart"]] == [0]
+    for u in seq[100:600]:
+        u["wheel_speed_rr"] = 1e6  # beyond WHEEL_SPEED_MAX
+    zs, cs = _run(seq)
+    assert cs[100]["speed"] == seq[99]["speed"]  # the last good value
+    assert zs[149 + 200]["authority"] == 0.0

@@ -15,6 +15,10 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
   fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
   chase the yaw rate it no longer reports);
+* a speed sample that fails reads as the rear wheels' mean speed times the wheel radius where both wheel
+  speeds are in range (the motors' yaw-moment torque speeds one wheel as much as it slows the other), else
+  as the last good value; a speed in fault then takes the law's authority only while the wheels cannot
+  stand in for it (it is named in the fault word all the same);
 * a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
   is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
   wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
@@ -148,6 +152,7 @@ STATE = Layout("ECU guard state", [
     Signal("held_yaw_rate", "s", "time the yaw rate has read the same value"),
     Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
     Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
+    Signal("degraded", "-", "1 while an input the law depends on is in fault and nothing stands in for it"),
     Signal("restart", "-", "1 on the period the filter and the law restart"),
     Signal("hold", "s", "time left before the authority may ramp back after a restart"),
     Signal("bad_samples", "-", "samples replaced since start"),
@@ -217,6 +222,12 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     # not taken as the last good value
     kinematic = clean["ay"] / o.fmax(v, s.consistency_speed)
     clean["yaw_rate"] = o.if_else(oks["yaw_rate"], g["yaw_rate"], o.if_else(stuck, kinematic, st["last_yaw_rate"]))
+    # a speed sample not taken reads as the rear wheels' mean speed where both are in range (the motors' torque
+    # difference speeds one as much as it slows the other)
+    wl, wr = g["wheel_speed_rl"], g["wheel_speed_rr"]
+    wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
+    from_wheels = 0.5 * (o.if_else(wheels_ok, wl, 0.0) + o.if_else(wheels_ok, wr, 0.0)) * wheel_radius
+    clean["speed"] = o.if_else(oks["speed"], g["speed"], o.if_else(wheels_ok, from_wheels, st["last_speed"]))
     for c in CHECKS:
         nxt[f"last_{c.name}"] = clean[c.name]
         bad[c.name] = 1.0 - oks[c.name]
@@ -262,8 +273,13 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         nxt[f"fault_{name}"] = fault_n
         words.append(fault_n * float(2 ** FAULT_BITS[name]))
     word = tree(words, lambda a, b: a + b)
-    was = tree([st[f"fault_{name}"] for name in DEGRADING], o.fmax)
-    now = tree([nxt[f"fault_{name}"] for name in DEGRADING], o.fmax)
+    # a speed in fault takes the authority only where the wheels cannot stand in for it
+    # (both wheel speeds in range now and neither in fault: the same hysteresis as the speed's own)
+    stand_in = wheels_ok * (1.0 - nxt["fault_wheel_speed_rl"]) * (1.0 - nxt["fault_wheel_speed_rr"])
+    spare = {"speed": 1.0 - stand_in}
+    was = st["degraded"]
+    now = tree([nxt[f"fault_{name}"] * spare.get(name, 1.0) for name in DEGRADING], o.fmax)
+    nxt["degraded"] = now
     step = dt_c / s.ramp_time
     restart = was * (1.0 - now) * float(s.restart)
     # the first period after evstab_init is a start too: an ECU reset at speed restarts as a recovery does
