@@ -24,14 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import get_plant, load_vehicle
 from evstab.plants.maneuvers import sine_with_dwell
 from evstab.plants.model import COMMANDS, DISTURBANCES, TRUTH
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit.compiled import CompiledPlant
-from evstab.toolkit.design_job import basic_design_document
-from evstab.toolkit.estimation import design_filter
+from evstab.toolkit.design_job import default_design_document
 from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import export_design
 from evstab.toolkit.firmware.fmu import FMU_NAME, MODEL_IDENTIFIER, VR_OUTPUT
@@ -44,10 +42,7 @@ GPS_EVERY = 200
 
 def default_fmu(folder: Path) -> Path:
     """The bundled compact-ev ECU (``dakf``, the 2-DOF law on the nominal model) exported as an FMU in ``folder``."""
-    p = load_vehicle("compact-ev")
-    doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
-                                {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10},
-                                "python -m evstab.studies.fmu_fmvss126")
+    doc = default_design_document("python -m evstab.studies.fmu_fmvss126")
     (folder / "design").mkdir(parents=True, exist_ok=True)
     (folder / "design" / "design.json").write_text(json.dumps(doc))
     export_design(folder / "design", folder / "fmu", ("json",), fmu=True)

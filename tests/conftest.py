@@ -29,13 +29,9 @@ def default_design_dir(tmp_path_factory):
     on the nominal model, written directly (no design job): what the firmware tests export."""
     import json
 
-    from evstab.controllers.two_dof import TwoDofDesign
-    from evstab.toolkit.design_job import basic_design_document
-    from evstab.toolkit.estimation import design_filter
+    from evstab.toolkit.design_job import default_design_document
 
-    p = load_vehicle("compact-ev")
-    doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
-                                {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}, "test fixture")
+    doc = default_design_document("test fixture")
     out = tmp_path_factory.mktemp("default_design")
     (out / "design.json").write_text(json.dumps(doc, indent=2))
     return out

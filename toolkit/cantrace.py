@@ -10,8 +10,8 @@ frames and remote frames are skipped.
 Refused, each with the file, message or signal named: a trace without a DBC; a DBC that does not load; a
 mapped signal the DBC does not have, or has in several messages (name it as ``MESSAGE.SIGNAL``); a mapped
 message with no frame in the trace; a frame too short for its message; a trace that cannot be read to its
-end (a truncated BLF, a garbled ASC line). :func:`frame_gaps` names the mapped messages whose frames came
-late: an interval longer than :data:`LATE_FACTOR` times the message's median.
+end (a truncated BLF, a garbled ASC line). Beside the channels it names the mapped messages whose frames came
+late (:func:`frame_gaps`): an interval longer than :data:`LATE_FACTOR` times the message's median.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import numpy as np
 
 from .logio import LogFormatError
 
-CAN_SUFFIXES = (".blf", ".asc")
 LATE_FACTOR = 3.0
 """A frame more than this many median intervals after the previous one of its message came late (a lost or
 delayed frame: the cycle time of a CAN message is fixed by the car's network design)."""
@@ -87,9 +86,10 @@ def _frames(path: Path, ids: set) -> tuple[dict, float | None]:
     return frames, first
 
 
-def can_channels(path, names, dbc) -> dict:
-    """The channels ``names`` of the CAN trace ``path`` decoded with ``dbc``: ``name -> (time stamps [s],
-    physical values, unit)`` (see the module)."""
+def can_channels(path, names, dbc) -> tuple[dict, list[str]]:
+    """The channels ``names`` of the CAN trace ``path`` decoded with ``dbc``, ``name -> (time stamps [s],
+    physical values, unit)`` (see the module), and :func:`frame_gaps` of the mapped messages (one read of the
+    trace for both)."""
     path = Path(path)
     db = _load_dbc(dbc)
     wanted = _resolve(db, dbc, names)
@@ -117,16 +117,13 @@ def can_channels(path, names, dbc) -> dict:
             raise LogFormatError(f"{path}: no frame of message '{m.name}' carries '{s.name}' (its multiplexer never "
                                  f"selects it)")
         out[n] = (ts, vals, s.unit or "")
-    return out
+    return out, frame_gaps({m.frame_id: m for m, _ in wanted.values()}, frames, first)
 
 
-def frame_gaps(path, names, dbc) -> list[str]:
-    """The mapped messages whose frames came late in the trace, one line each: how many intervals exceeded
-    :data:`LATE_FACTOR` times the message's median, and the longest."""
-    path = Path(path)
-    db = _load_dbc(dbc)
-    msgs = {m.frame_id: m for m, _ in _resolve(db, dbc, names).values()}
-    frames, first = _frames(path, set(msgs))
+def frame_gaps(msgs: dict, frames: dict, first: float) -> list[str]:
+    """The messages ``msgs`` (frame id -> message) whose ``frames`` (as :func:`_frames` reads them) came late,
+    one line each: how many intervals exceeded :data:`LATE_FACTOR` times the message's median, and the longest
+    (its time from the trace's ``first`` frame)."""
     out = []
     for i, m in sorted(msgs.items()):
         ts = np.array([t for t, _ in frames[i]], float)

@@ -65,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .logio import REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows, read_toml
+from .logio import CAN_SUFFIXES, REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows, read_toml
 
 COLUMNS = tuple(c for c, _, _ in SCHEMA if c != "t")
 MAPPABLE = COLUMNS + TRUTH_COLUMNS
@@ -320,7 +320,7 @@ def source_kind(path) -> str:
         return "mdf"
     if name.endswith(".mat"):
         return "mat"
-    if name.endswith((".blf", ".asc")):
+    if name.endswith(CAN_SUFFIXES):
         return "can"
     return "csv"
 
@@ -336,9 +336,10 @@ def read_mapped(path, channel_map) -> DriveLog:
     kind = source_kind(path)
     wanted = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]} |
                     ({cmap["time"]} if cmap["time"] else set()))
+    notes = ()
     if kind == "can":
         from .cantrace import can_channels
-        got = can_channels(path, wanted, cmap.get("dbc"))
+        got, notes = can_channels(path, wanted, cmap.get("dbc"))
     else:
         got = {"mdf": _mdf_channels, "mat": _mat_channels, "csv": _csv_channels}[kind](path, wanted)
     for col, spec in cmap["columns"].items():
@@ -420,7 +421,7 @@ def read_mapped(path, channel_map) -> DriveLog:
         cols["gps_course"] = np.full(len(t), math.nan)
     if "beta_true" not in cols and "vx_true" in cols and "vy_true" in cols:
         cols["beta_true"] = np.arctan2(cols["vy_true"], cols["vx_true"])
-    log = DriveLog(cols, str(path))
+    log = DriveLog(cols, str(path), tuple(notes))
     check_ranges(log)
     return log
 

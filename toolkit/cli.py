@@ -330,13 +330,11 @@ def cmd_convert(args) -> int:
             if source_kind(args.log) != "can":
                 raise EvstabError(f"{args.log}: --dbc goes with a CAN trace (.blf, .asc)")
             cmap["dbc"] = Path(args.dbc)
-        merged = read_log(args.log, None, cmap).columns
+        log = read_log(args.log, None, cmap)
+        merged = log.columns
         what = f"{args.log}: {len(merged['t'])} rows"
-        if source_kind(args.log) == "can":
-            from .cantrace import frame_gaps
-            names = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]})
-            for line in frame_gaps(args.log, names, cmap["dbc"]):
-                print(f"  late frames: {line}")
+        for line in log.notes:
+            print(f"  late frames: {line}")
     write_log_csv(args.out, merged)
     fixes = int(np.isfinite(merged["gps_course"]).sum())
     truth = [c for c in merged if c.endswith("_true")]

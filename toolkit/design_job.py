@@ -120,6 +120,22 @@ def basic_design_document(params: VehicleParams, filt: FilterDesign, ctl: TwoDof
     }
 
 
+DEFAULT_GPS = {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10}
+"""The GPS set-up of :func:`default_design_document`."""
+
+
+def default_design_document(command: str | None, vehicle: str = "compact-ev") -> dict:
+    """The bundled car's ECU as it stands without a design job: ``dakf`` with the ECU's noise and the 2-DOF law
+    on the nominal model, as :func:`basic_design_document` writes it (what the firmware tools export by
+    default)."""
+    from evstab.plants import load_vehicle
+
+    from .estimation import design_filter
+    p = load_vehicle(vehicle)
+    return basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
+                                 DEFAULT_GPS, command)
+
+
 @dataclasses.dataclass(frozen=True)
 class LoadedDesign:
     """A design read back from ``design.json``: ready-made filter and controller designs."""

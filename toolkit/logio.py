@@ -42,6 +42,10 @@ m/s, deg for rad), which the reader names instead of passing on."""
 TRUTH_COLUMNS = ("beta_true", "yaw_rate_true", "yaw_true", "vx_true", "vy_true", "roll_true")
 
 
+CAN_SUFFIXES = (".blf", ".asc")
+"""CAN traces (python-can's BLF and ASC), read through a channel map and a DBC (:mod:`toolkit.cantrace`)."""
+
+
 class LogFormatError(EvstabError, ValueError):
     """A drive log does not follow the schema; the message names file, row and column."""
 
@@ -52,6 +56,8 @@ class DriveLog:
 
     columns: dict
     source: str
+    notes: tuple = ()
+    """What the reader noticed and the user should hear, one line each (a CAN trace's late frames)."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -161,8 +167,8 @@ def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_m
     (:mod:`toolkit.channels`), from an MDF4 file (``.mf4``/``.mdf``), a MATLAB file (``.mat``) or a CSV
     table with its own column names."""
     name = str(path).lower()
-    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat", ".blf", ".asc")):
-        kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a CAN trace" if name.endswith((".blf", ".asc")) \
+    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat") + CAN_SUFFIXES):
+        kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a CAN trace" if name.endswith(CAN_SUFFIXES) \
             else "a MATLAB"
         raise LogFormatError(f"{path}: {kind} log needs a channel map (--channel-map MAP.toml) that names "
                              f"the channel of each schema column")
@@ -171,7 +177,7 @@ def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_m
         log = read_mapped(path, channel_map)
         if columns is not None:
             keep = set(REQUIRED) | set(columns)
-            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
+            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source, log.notes)
         return log
     return read_log_csv(path, columns)
 
@@ -193,7 +199,7 @@ def read_log_csv(path: str | Path, columns: tuple[str, ...] | None = None,
     if log is None:
         log = _read_strict(Path(path), tuple(required))
         if keep is not None:
-            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source)
+            log = DriveLog({k: v for k, v in log.columns.items() if k in keep}, log.source, log.notes)
     check_ranges(log)
     return log
 

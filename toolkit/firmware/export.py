@@ -49,6 +49,12 @@ def gain_set(design_dir, command: str | None = None) -> dict:
     return gains.gains_document(d, prov, dict(doc.get("gps", {})))
 
 
+def generator_info(doc: dict) -> dict:
+    """What the C generator prints of a gain set: evstab's version, the design's digest, the vehicle."""
+    return {"evstab_version": doc["evstab_version"], "params_digest": doc["vehicle"]["params_digest"],
+            "vehicle": doc["vehicle"]["name"]}
+
+
 def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
     """File name -> content for the requested formats (nothing written)."""
     if precision not in PRECISIONS:
@@ -58,8 +64,7 @@ def render(doc: dict, formats, precision: str) -> dict[str, bytes]:
         raise ExportError(f"unknown export format {unknown[0]!r}; known: {', '.join(FORMATS)}, all")
     d, _, _ = gains.load_gains(doc)
     p = Precision(precision)
-    info = {"evstab_version": doc["evstab_version"], "params_digest": doc["vehicle"]["params_digest"],
-            "vehicle": doc["vehicle"]["name"]}
+    info = generator_info(doc)
     out: dict[str, bytes] = {}
     if "c" in formats:
         out["evstab_firmware.h"] = csource.header(d, p, info).encode()
@@ -109,9 +114,7 @@ def export_design(design_dir, out_dir, formats=FORMATS, precision: str = "float6
     if fmu:
         from .fmu import FMU_NAME, build_fmu
         d, _, _ = gains.load_gains(doc)
-        info = {"evstab_version": doc["evstab_version"], "params_digest": doc["vehicle"]["params_digest"],
-                "vehicle": doc["vehicle"]["name"]}
-        written.append(build_fmu(d, info, precision, out / FMU_NAME))
+        written.append(build_fmu(d, generator_info(doc), precision, out / FMU_NAME))
     for name, content in files.items():
         atomic_write(out / name, lambda fh, c=content: fh.write(c), mode="wb")
         written.append(out / name)

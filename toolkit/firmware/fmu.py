@@ -52,7 +52,7 @@ class FmuError(EvstabError, RuntimeError):
     """The FMU cannot be built (no C compiler, a failed build: the compiler's message is given)."""
 
 
-def guid(d: EcuDesign, c_source: str, precision: str) -> str:
+def guid(c_source: str, precision: str) -> str:
     """A GUID that changes with the generated C (and so with the design and its calibration)."""
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, f"evstab-fmu:{precision}:{c_source}")) + "}"
 
@@ -62,7 +62,8 @@ def _num(x: float) -> str:
 
 
 def _starts(d: EcuDesign) -> list[float]:
-    return [d.filter.dt_nominal if INPUT_START.get(n, 0.0) is None else INPUT_START.get(n, 0.0) for n in INPUTS]
+    starts = {**INPUT_START, "dt": d.filter.dt_nominal}
+    return [starts.get(n, 0.0) for n in INPUTS]
 
 
 def variables_header(d: EcuDesign, gid: str) -> str:
@@ -163,15 +164,14 @@ def model_description(d: EcuDesign, gid: str, info: dict) -> str:
 def build_fmu(d: EcuDesign, info: dict, precision: str, out_path, cc: str | None = None) -> Path:
     """Build the FMU of ``d`` at ``out_path`` (written under a temporary name and renamed when complete).
 
-    ``info``: ``evstab_version``, ``params_digest``, ``vehicle`` (as :func:`toolkit.firmware.export.render`
-    passes to the C generator). Raises :class:`FmuError` without a C compiler or when the build fails."""
+    ``info``: ``evstab_version``, ``params_digest``, ``vehicle`` (:func:`toolkit.firmware.export.generator_info`). Raises :class:`FmuError` without a C compiler or when the build fails."""
     cc = cc or compiler()
     if cc is None:
         raise FmuError("--fmu builds the FMU's binary with the host's C compiler: none found (set $CC, or install "
                        "cc/gcc)")
     p = Precision(precision)
     header, source = csource.header(d, p, info), csource.source(d, p, info)
-    gid = guid(d, source, precision)
+    gid = guid(source, precision)
     files = {"evstab_firmware.h": header, "evstab_firmware.c": source, "evstab_fmu.c": WRAPPER.read_text(),
              "evstab_fmu_vars.h": variables_header(d, gid)}
     xml = model_description(d, gid, {**info, "precision": precision})

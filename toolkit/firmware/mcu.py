@@ -234,12 +234,9 @@ def main(argv=None) -> None:
     import json
     import tempfile
 
-    from evstab.controllers.two_dof import TwoDofDesign
-    from evstab.plants import load_vehicle
     from evstab.studies._common import write_markdown
 
-    from ..design_job import basic_design_document
-    from ..estimation import design_filter
+    from ..design_job import default_design_document
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", help="folder for the tables mcu_build.md and mcu_misra.md")
     ap.add_argument("--design", help="an 'evstab design' folder (default: the bundled compact-ev, dakf, 2-DOF)")
@@ -247,10 +244,7 @@ def main(argv=None) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="evstab_mcu_"))
     design = args.design
     if design is None:
-        p = load_vehicle("compact-ev")
-        doc = basic_design_document(p, design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal()),
-                                    {"rate_hz": 5.0, "latency_s": 0.0, "hdop": 0.9, "satellites": 10},
-                                    "python -m evstab.toolkit.firmware.mcu")
+        doc = default_design_document("python -m evstab.toolkit.firmware.mcu")
         design = tmp / "design"
         design.mkdir()
         (design / "design.json").write_text(json.dumps(doc))
