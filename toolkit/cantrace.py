@@ -10,7 +10,8 @@ frames and remote frames are skipped.
 Refused, each with the file, message or signal named: a trace without a DBC; a DBC that does not load; a
 mapped signal the DBC does not have, or has in several messages (name it as ``MESSAGE.SIGNAL``); a mapped
 message with no frame in the trace; a frame too short for its message; a trace that cannot be read to its
-end (a truncated BLF, a garbled ASC line). Beside the channels it names the mapped messages whose frames came
+end (a garbled ASC line) or ends early (a BLF shorter than its header's file size, an ASC without its closing
+``End TriggerBlock`` line). Beside the channels it names the mapped messages whose frames came
 late (:func:`frame_gaps`): an interval longer than :data:`LATE_FACTOR` times the message's median.
 """
 
@@ -71,8 +72,10 @@ def _frames(path: Path, ids: set) -> tuple[dict, float | None]:
     frames: dict[int, list] = {i: [] for i in ids}
     first = None
     count = 0
+    blf = reader_cls is can.BLFReader
     try:
         with reader_cls(str(path)) as reader:
+            declared = reader.file_size if blf else None
             for msg in reader:
                 count += 1
                 if first is None:
@@ -83,7 +86,24 @@ def _frames(path: Path, ids: set) -> tuple[dict, float | None]:
     except Exception as e:  # python-can raises struct, zlib, value and its own errors on a damaged file
         raise LogFormatError(f"{path}: the trace cannot be read past its frame {count}: "
                              f"{type(e).__name__}: {e}") from None
+    # python-can stops quietly where a file ends early; the file itself says where it should end
+    size = path.stat().st_size
+    if blf and declared and size < declared:
+        raise LogFormatError(f"{path}: truncated: {size} bytes where its header says {declared} (the trace cannot "
+                             f"be read past its frame {count})")
+    if not blf and not _asc_closed(path):
+        raise LogFormatError(f"{path}: truncated: no 'End TriggerBlock' line after its frame {count} (an ASC trace "
+                             f"ends with one)")
     return frames, first
+
+
+def _asc_closed(path: Path) -> bool:
+    """Whether the ASC trace's last non-blank line closes its trigger block."""
+    with open(path, "rb") as fh:
+        fh.seek(max(0, path.stat().st_size - 4096))
+        tail = fh.read().decode("latin-1").splitlines()
+    last = next((ln.strip() for ln in reversed(tail) if ln.strip()), "")
+    return last.lower().startswith("end triggerblock")
 
 
 def can_channels(path, names, dbc) -> tuple[dict, list[str]]:
@@ -133,7 +153,7 @@ def frame_gaps(msgs: dict, frames: dict, first: float) -> list[str]:
         late = dt > LATE_FACTOR * np.median(dt)
         if late.any():
             k = int(np.argmax(dt))
-            out.append(f"message '{m.name}' (id 0x{i:X}): {int(late.sum())} of {len(dt)} intervals longer than "
+            out.append(f"late frames: message '{m.name}' (id 0x{i:X}): {int(late.sum())} of {len(dt)} intervals longer than "
                        f"{LATE_FACTOR:g} x its median {1000 * np.median(dt):.1f} ms, the longest {1000 * dt[k]:.1f} ms "
                        f"at t = {ts[k] - first:.3f} s")
     return out

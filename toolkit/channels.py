@@ -1,7 +1,9 @@
 """Logs recorded by other tools to the drive-log schema, through a channel map: ASAM MDF4 (asammdf),
-MATLAB ``.mat`` (scipy.io; v7.3 files through h5py), CSV tables with their own column names, and CAN traces
+MATLAB ``.mat`` (scipy.io; v7.3 files through h5py), CSV tables with their own column names, CAN traces
 (BLF, ASC; python-can) with the car's DBC (cantools; :mod:`toolkit.cantrace`): a channel is then a DBC
-signal, ``SIGNAL`` or ``MESSAGE.SIGNAL``, and ``[options] dbc`` (or ``evstab convert --dbc``) names the DBC.
+signal, ``SIGNAL`` or ``MESSAGE.SIGNAL``, and ``[options] dbc`` (or ``evstab convert --dbc``) names the DBC;
+and ROS 2 bags (MCAP; :mod:`toolkit.mcaplog`): a channel is ``TOPIC.FIELD``, ``[options] stamps`` says
+whether a sample's time is its header stamp (``"header"``, the default) or its log time (``"log"``).
 
 The channel map is a small TOML file, one table per schema column (``t`` excepted) or truth column::
 
@@ -38,14 +40,19 @@ Per column: ``channel`` (or ``channels``, averaged; or ``value``, a constant in 
 signal the file does not have), ``unit`` as logged, ``scale`` and ``offset``
 (``schema = sign * scale * logged / ratio + offset``; ``scale`` defaults to the factor of ``unit``
 to the schema's unit, so ``unit = "deg"`` on a rad column converts), ``sign`` (+1 or -1),
-``ratio`` (``steer`` only), ``angle``, ``held``. A unit that cannot be converted to the column's
+``ratio`` (``steer`` only), ``angle``, ``held``; ``frame = "FRD"`` for a body signal logged
+forward-right-down (:data:`FRD_FLIPPED` change sign); ``velocity = [X, Y]`` with ``frame = "ENU"`` or
+``"NED"`` for ``gps_course`` or ``gps_speed`` from a receiver's horizontal velocity
+(:func:`horizontal_velocity`); ``fix_status`` (GPS columns) for the receiver's status channel, a sample
+counting where the latest status is >= 0 (:func:`fix_mask`). A unit that cannot be converted to the column's
 (``deg`` for a speed) is refused, as is an unknown unit without a ``scale``. Truth columns
 (``beta_true``, ``vx_true``, ``vy_true``, ``yaw_rate_true``, ...) are mapped the same way; where
 ``vx_true`` and ``vy_true`` are mapped and ``beta_true`` is not, ``beta_true = atan2(vy, vx)``.
 
-Alignment: the rows are the time base's samples. Other continuous channels are interpolated linearly
-onto them, never extrapolated (a row outside a channel's span is an error for a required column, NaN
-otherwise). GPS columns (``gps_*``) are placed, not interpolated: each sample on the first row at or
+Alignment: the rows are the time base's samples, less those outside the span every required channel covers
+(:func:`required_span`: channels at several rates start and stop apart; the log's notes say what was
+dropped). Other continuous channels are interpolated linearly onto them, never extrapolated (NaN outside an
+optional channel's span; a gap in a required one is an error). GPS columns (``gps_*``) are placed, not interpolated: each sample on the first row at or
 after its time (:func:`toolkit.logio.place_on_rows`), so no fix is invented between real ones. A log
 without ``gps_course`` is a reference log: ``evstab emulate`` adds a receiver's course to it.
 
@@ -65,14 +72,21 @@ from pathlib import Path
 
 import numpy as np
 
-from .logio import CAN_SUFFIXES, REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows, read_toml
+from .logio import CAN_SUFFIXES, MCAP_SUFFIXES, REQUIRED, SCHEMA, TRUTH_COLUMNS, DriveLog, LogFormatError, check_ranges, place_on_rows, read_toml
 
 COLUMNS = tuple(c for c, _, _ in SCHEMA if c != "t")
 MAPPABLE = COLUMNS + TRUTH_COLUMNS
 GPS_COLUMNS = ("gps_course", "gps_speed", "gps_hdop", "gps_sats", "gps_heading")
 ANGLE_CONVENTIONS = ("cw-from-north-deg",)
-_KEYS = {"channel", "channels", "value", "unit", "scale", "offset", "sign", "ratio", "angle", "held"}
-_OPTIONS = {"time_base", "sample_rate", "time", "time_scale", "dbc"}
+_KEYS = {"channel", "channels", "value", "unit", "scale", "offset", "sign", "ratio", "angle", "held", "frame", "velocity",
+         "fix_status"}
+_OPTIONS = {"time_base", "sample_rate", "time", "time_scale", "dbc", "stamps"}
+FRD_FLIPPED = ("ay", "yaw_rate", "steer", "yaw_moment", "vy_true", "yaw_rate_true", "beta_true")
+"""Columns along y or about z: their sign changes from a forward-right-down body frame to ISO 8855's
+forward-left-up."""
+FRD_KEPT = ("ax", "roll_rate", "vx_true", "roll_true")
+"""Columns along or about x: the same in both body frames."""
+EARTH_FRAMES = ("ENU", "NED")
 _TRUTH_UNITS = {"beta_true": "rad", "yaw_rate_true": "rad/s", "yaw_true": "rad", "vx_true": "m/s", "vy_true": "m/s",
                 "roll_true": "rad"}
 SCHEMA_UNITS = {**{c: u for c, u, _ in SCHEMA}, **_TRUTH_UNITS}
@@ -124,7 +138,12 @@ def load_channel_map(path) -> dict:
     dbc = opts.get("dbc")
     if dbc is not None and (not isinstance(dbc, str) or not dbc):
         raise LogFormatError(f"{path}: [options] dbc = {dbc!r}: expected the path of the CAN trace's DBC file")
-    return {"time_base": base, "columns": out, "source": str(path), "sample_rate": None if rate is None else
+    from .mcaplog import STAMPS
+    stamps = opts.get("stamps", "header")
+    if stamps not in STAMPS:
+        raise LogFormatError(f"{path}: [options] stamps = {stamps!r}: expected \"header\" (an MCAP message's "
+                             f"header.stamp) or \"log\" (its log time)")
+    return {"stamps": stamps, "time_base": base, "columns": out, "source": str(path), "sample_rate": None if rate is None else
             float(rate), "time": tch, "time_scale": float(tscale), "meta": dict(meta),
             "dbc": None if dbc is None else path.parent / dbc}
 
@@ -151,7 +170,13 @@ def _column_spec(path, col, spec) -> dict:
         if col in GPS_COLUMNS or col.endswith("_true"):
             raise LogFormatError(f"{where}: 'value' is for measured signals, not GPS or truth columns")
         return {"channel": None, "channels": [], "value": _number(where, "value", spec["value"], 0.0), "unit": None,
-                "scale": 1.0, "offset": 0.0, "angle": None, "held": False}
+                "scale": 1.0, "offset": 0.0, "angle": None, "held": False, "velocity": None, "fix_status": None}
+    fix_status = spec.get("fix_status")
+    if fix_status is not None and (col not in GPS_COLUMNS or not isinstance(fix_status, str) or not fix_status):
+        raise LogFormatError(f"{where}: 'fix_status' = {fix_status!r}: a GPS column's receiver status channel "
+                             f"(a fix where it is >= 0, sensor_msgs/NavSatStatus)")
+    if "velocity" in spec:
+        return _velocity_spec(where, col, spec, fix_status)
     if "channel" not in spec and "channels" not in spec:
         raise LogFormatError(f"{where}: missing key 'channel' (the channel name in the file; or 'channels', a list "
                              f"of channels averaged)")
@@ -163,6 +188,11 @@ def _column_spec(path, col, spec) -> dict:
     unit = spec.get("unit")
     if unit is not None and not isinstance(unit, str):
         raise LogFormatError(f"{where}: 'unit' must be a string, got {unit!r}")
+    frame = spec.get("frame")
+    if frame is not None and (frame not in ("FLU", "FRD") or col not in FRD_FLIPPED + FRD_KEPT):
+        raise LogFormatError(f"{where}: 'frame' = {frame!r}: body axes \"FLU\" (ISO 8855) or \"FRD\", for "
+                             f"{', '.join(FRD_FLIPPED + FRD_KEPT)}; a receiver's velocity takes \"ENU\" or "
+                             f"\"NED\" with 'velocity'")
     angle = spec.get("angle")
     if angle is not None and (col not in ("gps_course", "gps_heading") or angle not in ANGLE_CONVENTIONS):
         raise LogFormatError(f"{where}: 'angle' = {angle!r}: only gps_course and gps_heading take "
@@ -195,8 +225,53 @@ def _column_spec(path, col, spec) -> dict:
         raise LogFormatError(f"{where}: 'held' must be true or false, got {held!r}")
     if held and col not in GPS_COLUMNS:
         raise LogFormatError(f"{where}: 'held' is for GPS columns (one fix per change of value)")
+    if frame == "FRD" and col in FRD_FLIPPED:
+        sign = -sign
     return {"channel": names[0], "channels": names, "value": None, "unit": unit, "scale": scale * sign / ratio,
-            "offset": _number(where, "offset", spec.get("offset"), 0.0), "angle": angle, "held": held}
+            "offset": _number(where, "offset", spec.get("offset"), 0.0), "angle": angle, "held": held,
+            "velocity": None, "fix_status": fix_status}
+
+
+def _velocity_spec(where, col, spec, fix_status) -> dict:
+    """``velocity = [X, Y]`` with ``frame = "ENU"`` or ``"NED"``: the course (yaw sense, rad) or the ground
+    speed of a receiver's horizontal velocity."""
+    if col not in ("gps_course", "gps_speed"):
+        raise LogFormatError(f"{where}: 'velocity' (a receiver's horizontal velocity) gives gps_course or gps_speed")
+    extra = set(spec) - {"velocity", "frame", "unit", "held", "fix_status"}
+    if extra:
+        raise LogFormatError(f"{where}: 'velocity' takes 'frame', 'unit', 'held' and 'fix_status', not "
+                             f"'{sorted(extra)[0]}'")
+    names = spec["velocity"]
+    if not isinstance(names, list) or len(names) != 2 or not all(isinstance(n, str) and n for n in names):
+        raise LogFormatError(f"{where}: 'velocity' must be two channel names, the horizontal velocity's x and y "
+                             f"components in 'frame'")
+    frame = spec.get("frame")
+    if frame not in EARTH_FRAMES:
+        raise LogFormatError(f"{where}: 'velocity' needs 'frame' = \"ENU\" (x east, y north: REP 103) or \"NED\" "
+                             f"(x north, y east), got {frame!r}")
+    unit = spec.get("unit", "m/s")
+    if not isinstance(unit, str) or UNITS.get(unit, ("",))[0] != "m/s":
+        raise LogFormatError(f"{where}: 'unit' = {unit!r}: the velocity's unit, a speed ({', '.join(k for k, (d, _) in UNITS.items() if d == 'm/s')})")
+    held = spec.get("held", False)
+    if not isinstance(held, bool):
+        raise LogFormatError(f"{where}: 'held' must be true or false, got {held!r}")
+    return {"channel": names[0], "channels": list(names), "value": None, "unit": None,
+            "scale": UNITS[unit][1] if col == "gps_speed" else 1.0, "offset": 0.0, "angle": None, "held": held,
+            "velocity": frame, "fix_status": fix_status}
+
+
+def horizontal_velocity(col: str, frame: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The course in the yaw sense [rad] (0 east, counter-clockwise; unwrapped over the finite values) or the
+    ground speed of a horizontal velocity ``(x, y)`` in ``frame`` (ENU: x east, y north; NED: x north, y east).
+    No velocity has no course: NaN where both components are 0."""
+    east, north = (x, y) if frame == "ENU" else (y, x)
+    if col == "gps_speed":
+        return np.hypot(east, north)
+    a = np.arctan2(north, east)
+    a[(east == 0) & (north == 0)] = np.nan
+    ok = np.isfinite(a)
+    a[ok] = np.unwrap(a[ok])
+    return a
 
 
 # --- sources: name -> (timestamps or None, values, unit or None) ------------------------------------------------
@@ -314,7 +389,7 @@ def _csv_channels(path: Path, names) -> dict:
 
 
 def source_kind(path) -> str:
-    """``mdf``, ``mat``, ``can`` (a BLF or ASC trace) or ``csv`` by the file name."""
+    """``mdf``, ``mat``, ``can`` (a BLF or ASC trace), ``mcap`` (a ROS 2 bag) or ``csv`` by the file name."""
     name = str(path).lower()
     if name.endswith((".mf4", ".mdf")):
         return "mdf"
@@ -322,6 +397,8 @@ def source_kind(path) -> str:
         return "mat"
     if name.endswith(CAN_SUFFIXES):
         return "can"
+    if name.endswith(MCAP_SUFFIXES):
+        return "mcap"
     return "csv"
 
 
@@ -335,11 +412,15 @@ def read_mapped(path, channel_map) -> DriveLog:
         raise LogFormatError(f"{path}: no such file")
     kind = source_kind(path)
     wanted = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]} |
+                    {spec["fix_status"] for spec in cmap["columns"].values() if spec["fix_status"]} |
                     ({cmap["time"]} if cmap["time"] else set()))
     notes = ()
     if kind == "can":
         from .cantrace import can_channels
         got, notes = can_channels(path, wanted, cmap.get("dbc"))
+    elif kind == "mcap":
+        from .mcaplog import mcap_channels
+        got = mcap_channels(path, wanted, cmap.get("stamps", "header"))
     else:
         got = {"mdf": _mdf_channels, "mat": _mat_channels, "csv": _csv_channels}[kind](path, wanted)
     for col, spec in cmap["columns"].items():
@@ -350,6 +431,10 @@ def read_mapped(path, channel_map) -> DriveLog:
             if spec["unit"] is not None and unit and unit != spec["unit"]:
                 raise LogFormatError(f"{path}: channel '{n}' is in '{unit}', the channel map ({cmap['source']}) "
                                      f"says '{spec['unit']}'")
+    for col, spec in cmap["columns"].items():
+        if spec["fix_status"] and got.get(spec["fix_status"]) is None:
+            raise LogFormatError(f"{path}: no channel '{spec['fix_status']}' (the fix status of '{col}' in "
+                                 f"{cmap['source']})")
     if cmap["time"] and got.get(cmap["time"]) is None:
         raise LogFormatError(f"{path}: no channel '{cmap['time']}' ([options] time in {cmap['source']})")
 
@@ -376,10 +461,18 @@ def read_mapped(path, channel_map) -> DriveLog:
         vals = [got[n][1] for n in spec["channels"]]
         if len(vals) > 1 and any(len(x) != len(vals[0]) or not np.array_equal(t, ts[0]) for x, t in zip(vals, ts)):
             raise LogFormatError(f"{path}: the channels of '{col}' ({', '.join(spec['channels'])}) are not sampled "
-                                 f"together; averaging them needs one time base")
-        sigs[col] = (ts[0], np.mean(vals, axis=0) if len(vals) > 1 else vals[0], spec)
+                                 f"together; {'a velocity' if spec['velocity'] else 'averaging them'} needs one "
+                                 f"time base")
+        if spec["velocity"]:
+            sigs[col] = (ts[0], horizontal_velocity(col, spec["velocity"], *vals), spec)
+        else:
+            sigs[col] = (ts[0], np.mean(vals, axis=0) if len(vals) > 1 else vals[0], spec)
     t, _, _ = sigs[cmap["time_base"]]
     _check_time(t, path, cmap["columns"][cmap["time_base"]]["channel"])
+    span, trimmed = required_span(t, {col: sig for col, sig in sigs.items() if col in REQUIRED and col not in
+                                      GPS_COLUMNS and col != cmap["time_base"]}, path)
+    notes = tuple(notes) + trimmed
+    t = t[span]
     cols = {"t": t - t[0] if kind != "mdf" and cmap["time"] else t}
     for col, (ts, v, spec) in sigs.items():
         ch = spec["channel"]
@@ -388,6 +481,10 @@ def read_mapped(path, channel_map) -> DriveLog:
             keep = np.isfinite(v)
             if spec["held"]:  # one fix per change of value (the first sample of each epoch)
                 keep &= np.concatenate([[True], np.diff(v) != 0])
+            if spec["fix_status"]:  # the receiver's latest status at or before the sample: a fix where >= 0
+                st_t, st_v = stamps(spec["fix_status"]), got[spec["fix_status"]][1]
+                known = np.isfinite(st_v)  # a table's rows without a status message are empty
+                keep &= fix_mask(ts, st_t[known], st_v[known])
             ts_k, v_k = ts[keep], v[keep]
             rows, inside, _ = place_on_rows(t, ts_k, f"{path}: channel '{ch}'")
             vals = v_k[inside]
@@ -402,7 +499,7 @@ def read_mapped(path, channel_map) -> DriveLog:
         else:
             v = v * spec["scale"] + spec["offset"]
             if col == cmap["time_base"]:
-                out = v
+                out = v[span]
             else:
                 _check_time(ts, path, ch)
                 ok = np.isfinite(v)
@@ -424,6 +521,47 @@ def read_mapped(path, channel_map) -> DriveLog:
     log = DriveLog(cols, str(path), tuple(notes))
     check_ranges(log)
     return log
+
+
+def required_span(t: np.ndarray, sigs: dict, path) -> tuple[slice, tuple]:
+    """The rows of the time base ``t`` inside the span every required channel (``col -> (times, values,
+    spec)``) has finite samples over, and a note per end trimmed: channels logged at several rates start and
+    stop a few samples apart, and a required column is never extrapolated. A gap inside the span stays an
+    error (:func:`read_mapped`)."""
+    lo, hi = -math.inf, math.inf
+    first, last = None, None
+    for col, (ts, v, spec) in sigs.items():
+        ok = np.flatnonzero(np.isfinite(v))
+        if not len(ok):
+            continue
+        if ts[ok[0]] > lo:
+            lo, first = float(ts[ok[0]]), (col, spec["channel"])
+        if ts[ok[-1]] < hi:
+            hi, last = float(ts[ok[-1]]), (col, spec["channel"])
+    i, j = int(np.searchsorted(t, lo, side="left")), int(np.searchsorted(t, hi, side="right"))
+    if i >= j:
+        raise LogFormatError(f"{path}: the required channels have no common span on the time base's rows "
+                             f"('{first[1]}' ({first[0]}) starts at {lo!r} s, '{last[1]}' ({last[0]}) ends at "
+                             f"{hi!r} s)")
+    notes = []
+    if i:
+        notes.append(f"rows: the first {i} (before t = {lo:.6g} s) dropped, before the first sample of "
+                     f"'{first[1]}' ({first[0]})")
+    if j < len(t):
+        notes.append(f"rows: the last {len(t) - j} (after t = {hi:.6g} s) dropped, after the last sample of "
+                     f"'{last[1]}' ({last[0]})")
+    return slice(i, j), tuple(notes)
+
+
+def fix_mask(ts: np.ndarray, status_t: np.ndarray, status: np.ndarray) -> np.ndarray:
+    """True at the times ``ts`` whose latest receiver status (``status`` at ``status_t``, at or before the
+    time) is a fix: >= 0 in sensor_msgs/NavSatStatus (-1 no fix, 0 fix, 1 SBAS, 2 ground-based
+    augmentation). A time before the first status has none."""
+    j = np.searchsorted(status_t, ts, side="right") - 1
+    ok = j >= 0
+    out = np.zeros(len(ts), bool)
+    out[ok] = status[j[ok]] >= 0
+    return out
 
 
 def _check_time(ts: np.ndarray, path, channel: str) -> None:

@@ -294,8 +294,19 @@ def cmd_convert(args) -> int:
     from .logio import REQUIRED, read_log, read_log_csv, write_log_csv
     from .nmea import merge_onto_imu, read_nmea
 
+    from .channels import source_kind
+    for flag, what in (("mcap", "an MCAP file (.mcap)"), ("can", "a CAN trace (.blf, .asc)")):
+        given = getattr(args, flag)
+        if given is None:
+            continue
+        if args.log is not None:
+            raise EvstabError(f"--{flag} {given} and {args.log}: give one log to convert")
+        if source_kind(given) != flag:
+            raise EvstabError(f"--{flag} {given}: expected {what}")
+        args.log = given
     if (args.log is None) == (args.nmea is None):
-        raise EvstabError("give a log with --map (MDF4, MATLAB or CSV, and the channel map that names its channels), "
+        raise EvstabError("give a log with --map (MDF4, MATLAB, CSV, a CAN trace or a ROS 2 bag, and the channel map "
+                          "that names its channels), "
                           "or --nmea GPS.nmea with --imu IMU.csv")
     if args.nmea is not None:
         if args.imu is None or args.channel_map is not None:
@@ -324,7 +335,7 @@ def cmd_convert(args) -> int:
                               f"each drive-log column (docs/formats.md)")
         from pathlib import Path
 
-        from .channels import load_channel_map, source_kind
+        from .channels import load_channel_map
         cmap = load_channel_map(args.channel_map)
         if args.dbc is not None:
             if source_kind(args.log) != "can":
@@ -334,7 +345,7 @@ def cmd_convert(args) -> int:
         merged = log.columns
         what = f"{args.log}: {len(merged['t'])} rows"
         for line in log.notes:
-            print(f"  late frames: {line}")
+            print(f"  {line}")
     write_log_csv(args.out, merged)
     fixes = int(np.isfinite(merged["gps_course"]).sum())
     truth = [c for c in merged if c.endswith("_true")]
@@ -544,11 +555,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--trust-units", action="store_true",
                     help="skip the unit checks by consistency (gyro against GPS course, speed against GPS speed)")
     sp.set_defaults(func=cmd_replay)
-    sp = sub.add_parser("convert", help="a log with its own channels (MDF4, MATLAB .mat, CSV, a CAN trace with its "
-                                        "DBC; with a channel map), or "
+    sp = sub.add_parser("convert", help="a log with its own channels (MDF4, MATLAB .mat, CSV, a ROS 2 bag, a CAN "
+                                        "trace with its DBC; with a channel map), or "
                                         "an NMEA 0183 GNSS log and an IMU CSV, to a drive-log CSV")
-    sp.add_argument("log", nargs="?", help="log to convert (.mf4, .mat, .csv, or a CAN trace .blf/.asc with --dbc; "
-                                           "with --map)")
+    sp.add_argument("log", nargs="?", help="log to convert (.mf4, .mat, .csv, a ROS 2 bag .mcap, or a CAN trace "
+                                           ".blf/.asc with --dbc; with --map)")
+    sp.add_argument("--mcap", help="a ROS 2 bag (MCAP) to convert, as the log argument; the map names TOPIC.FIELD "
+                                   "channels (docs/formats.md)")
+    sp.add_argument("--can", help="a CAN trace (.blf, .asc) to convert, as the log argument; with --dbc")
     sp.add_argument("--dbc", help="the car's DBC that decodes a CAN trace (.blf, .asc); the map names DBC signals "
                                   "(SIGNAL or MESSAGE.SIGNAL)")
     sp.add_argument("--map", "--channel-map", dest="channel_map",

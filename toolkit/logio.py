@@ -44,6 +44,8 @@ TRUTH_COLUMNS = ("beta_true", "yaw_rate_true", "yaw_true", "vx_true", "vy_true",
 
 CAN_SUFFIXES = (".blf", ".asc")
 """CAN traces (python-can's BLF and ASC), read through a channel map and a DBC (:mod:`toolkit.cantrace`)."""
+MCAP_SUFFIXES = (".mcap",)
+"""ROS 2 bags and other MCAP files, read through a channel map (:mod:`toolkit.mcaplog`)."""
 
 
 class LogFormatError(EvstabError, ValueError):
@@ -167,9 +169,9 @@ def read_log(path: str | Path, columns: tuple[str, ...] | None = None, channel_m
     (:mod:`toolkit.channels`), from an MDF4 file (``.mf4``/``.mdf``), a MATLAB file (``.mat``) or a CSV
     table with its own column names."""
     name = str(path).lower()
-    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat") + CAN_SUFFIXES):
+    if channel_map is None and name.endswith((".mf4", ".mdf", ".mat") + CAN_SUFFIXES + MCAP_SUFFIXES):
         kind = "an MDF" if name.endswith((".mf4", ".mdf")) else "a CAN trace" if name.endswith(CAN_SUFFIXES) \
-            else "a MATLAB"
+            else "an MCAP" if name.endswith(MCAP_SUFFIXES) else "a MATLAB"
         raise LogFormatError(f"{path}: {kind} log needs a channel map (--channel-map MAP.toml) that names "
                              f"the channel of each schema column")
     if channel_map is not None:

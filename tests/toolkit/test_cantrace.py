@@ -191,6 +191,12 @@ def test_damaged_inputs_exit_2_naming_what_and_write_nothing(trace, tmp_path, ca
     code, out = _convert(root, tmp_path, str(tmp_path / "cut.blf"))
     err = capsys.readouterr().err
     assert code == 2 and "cut.blf" in err and not out.exists(), err
+    # an ASC cut at a line boundary (every line it keeps is whole: only its missing last line tells)
+    lines = (root / "drive.asc").read_text().splitlines(keepends=True)
+    (tmp_path / "cut.asc").write_text("".join(lines[: len(lines) // 2]))
+    code, out = _convert(root, tmp_path, str(tmp_path / "cut.asc"))
+    err = capsys.readouterr().err
+    assert code == 2 and "cut.asc" in err and "End TriggerBlock" in err and not out.exists(), err
     # a trace without the steering message
     with can.BLFWriter(str(tmp_path / "nosteer.blf")) as w:
         for m in msgs:
