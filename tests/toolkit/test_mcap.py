@@ -296,6 +296,35 @@ def test_the_mcap_and_can_options_take_only_their_kind(bag, tmp_path, capsys):
     assert "give one log" in capsys.readouterr().err and not out.exists()
 
 
+def test_json_messages_read_like_cdr(tmp_path):
+    """An MCAP whose messages are JSON (what Foxglove bridges and many loggers write): the same field paths and
+    header stamps; hand-worked values: a steady 0.2 rad/s turn at 20 m/s, 100 Hz, the hand-wheel at 30 deg over a
+    ratio of 15 (2 deg of road-wheel angle), the stamps 1 ms before the log times."""
+    import json
+
+    from mcap.writer import Writer as McapWriter
+    path = tmp_path / "j.mcap"
+    with open(path, "wb") as fh:
+        w = McapWriter(fh)
+        w.start(profile="", library="test")
+        sid = w.register_schema("vehicle", "jsonschema", b"{}")
+        ch = {n: w.register_channel(topic=n, message_encoding="json", schema_id=sid) for n in ("/imu", "/car")}
+        for k in range(100):
+            ns = 5_000_000_000 + k * 10_000_000
+            stamp = {"sec": ns // 10**9, "nanosec": ns % 10**9}
+            w.add_message(ch["/imu"], log_time=ns + 1_000_000, publish_time=ns, data=json.dumps(
+                {"header": {"stamp": stamp}, "angular_velocity": {"z": 0.2}}).encode())
+            w.add_message(ch["/car"], log_time=ns + 1_000_000, publish_time=ns, data=json.dumps(
+                {"header": {"stamp": stamp}, "speed": 20, "wheel": [30.0, 0.0]}).encode())
+        w.finish()
+    (tmp_path / "j.toml").write_text('[yaw_rate]\nchannel = "/imu.angular_velocity.z"\n[speed]\nchannel = "/car.speed"\n'
+                                     '[steer]\nchannel = "/car.wheel[0]"\nunit = "deg"\nratio = 15\n')
+    got = read_mapped(path, tmp_path / "j.toml").columns
+    np.testing.assert_allclose(got["t"], np.arange(100) * 0.01, rtol=0, atol=1e-12)  # the stamps, from 0
+    assert np.all(got["yaw_rate"] == 0.2) and np.all(got["speed"] == 20.0)
+    np.testing.assert_allclose(got["steer"], np.radians(2.0), rtol=1e-15)
+
+
 def test_horizontal_velocity_by_hand():
     """Course 0 east, counter-clockwise (DESIGN.md's yaw sense): north is +90 deg in ENU (0, 1) and NED (1, 0),
     west 180 deg; crossing south-west to west the angle is unwrapped, not folded to -180; no velocity has no
