@@ -1,10 +1,10 @@
 """The plant's share of a compiled loop step: the two-track plant alone, as a lane kernel of its own.
 
-The loop step (:func:`toolkit.closed_loop.loop_step`) is the plant's output equation (the truth the
+The loop step (:func:`toolkit.loop.closed_loop.loop_step`) is the plant's output equation (the truth the
 sensors sample, with the commands of the last period), the sensors, the ECU step, the actuators and
 the plant's RK4 over the period. :func:`plant_kernel` compiles the plant's two parts alone, the same
-functions (:func:`toolkit.compiled.rk4_step`, the model's ``h`` and command map) on the same lane
-kernel machinery (:mod:`toolkit.lanes`), and :func:`plant_inputs` feeds it what a loop run applied, so
+functions (:func:`toolkit.kernels.compiled.rk4_step`, the model's ``h`` and command map) on the same lane
+kernel machinery (:mod:`toolkit.kernels.lanes`), and :func:`plant_inputs` feeds it what a loop run applied, so
 that it retraces that run's truth: what a loop step costs at the least, whatever the ECU does.
 """
 
@@ -17,8 +17,9 @@ from evstab.plants import get_plant
 from evstab.plants.backend import call_nodes
 from evstab.plants.disturbances import DISTURBANCES
 from evstab.plants.model import COMMANDS
-from evstab.toolkit import closed_loop as cl, lanes as lanes_mod
-from evstab.toolkit.compiled import cache_key, rk4_step, symbolic_view
+from evstab.toolkit.loop import closed_loop as cl
+from evstab.toolkit.kernels import lanes as lanes_mod
+from evstab.toolkit.kernels.compiled import cache_key, rk4_step, symbolic_view
 
 ROLES = lanes_mod.Roles(stepped=(1,))
 """The plant kernel's inputs: ``u`` (the last period's commands, this period's, the disturbances) per
@@ -29,7 +30,7 @@ def plant_step(spec: cl.LoopSpec, table: bool = True) -> ca.Function:
     """``(x, u, p) -> (x_next, truth)``: the plant's part of one loop sample, ``u`` = (commands of the
     last period, commands of this one, disturbances), each per :data:`plants.model.COMMANDS` and
     :data:`plants.disturbances.DISTURBANCES`. Traced as the loop's lane kernel is
-    (:func:`toolkit.closed_loop._lane_step`: the tyres read their table); ``table=False`` evaluates the
+    (:func:`toolkit.loop.closed_loop._lane_step`: the tyres read their table); ``table=False`` evaluates the
     Magic Formula instead (:func:`plants.tires.combined_forces` inline, 3e-15 from the table)."""
     if not table:
         return _plant_step(spec)
@@ -52,7 +53,7 @@ def _plant_step(spec: cl.LoopSpec) -> ca.Function:
 
 def plant_kernel(spec: cl.LoopSpec, table: bool = True, cases: int | None = None) -> lanes_mod.LaneRollout | None:
     """The lane kernel of :func:`plant_step` at the width and flags the loop's kernel has for ``cases``
-    cases at once (:meth:`toolkit.closed_loop.LoopProgram.run_batch`: the narrow kernel for one or two,
+    cases at once (:meth:`toolkit.loop.loop_program.LoopProgram.run_batch`: the narrow kernel for one or two,
     default the wide one); None without a C compiler."""
     wide = lanes_mod.native_width()
     width = lanes_mod.NARROW if cases is not None and cases <= lanes_mod.NARROW < wide else wide
@@ -64,7 +65,7 @@ def plant_kernel(spec: cl.LoopSpec, table: bool = True, cases: int | None = None
 
 def plant_inputs(spec: cl.LoopSpec, U: np.ndarray, z0: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(x0 (cases, states), u (cases, samples, inputs)) of :func:`plant_step` that retrace loop runs:
-    ``U`` and ``z0`` their inputs and initial states, ``E`` their :data:`toolkit.closed_loop.EXTRA`
+    ``U`` and ``z0`` their inputs and initial states, ``E`` their :data:`toolkit.loop.closed_loop.EXTRA`
     (what was applied over each period; nothing before the first)."""
     nc = COMMANDS.size
     ui, ex = cl.INPUTS.columns, cl.EXTRA.index

@@ -2,7 +2,7 @@
 
 The loop: two-track plant -> sensors -> the ECU step (dakf, 2-DOF law) -> actuators ->
 plant, micro EV, 25 km/h, 5 deg step steer, wind, 1 kHz. evstab runs it as one call of the
-lane kernel of :func:`toolkit.closed_loop.loop_step` (:mod:`toolkit.lanes`; the time includes
+lane kernel of :func:`toolkit.loop.closed_loop.loop_step` (:mod:`toolkit.kernels.lanes`; the time includes
 making the run's inputs and noise). The reference gives python-control
 the same step: a discrete ``nlsys`` whose update is the numpy evaluation of that
 function (the loop is closed inside it; python-control integrates and bookkeeps), run by
@@ -25,7 +25,7 @@ from evstab.plants.backend import NUMPY
 from evstab.plants.disturbances import Disturbances, default_wind
 from evstab.plants.maneuvers import step_steer
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import closed_loop as cl
+from evstab.toolkit.loop import closed_loop as cl, loop_program
 
 
 def python_control_loop(spec, p, U, z0, theta, seconds, dt=1e-3):
@@ -79,7 +79,7 @@ def main(argv=None):
     dist = Disturbances(wind=default_wind(p))
     sens = SensorConfig()
     spec = cl.loop_spec(p, sensors=sens)
-    prog = cl.program(spec).compile()  # build and compile once
+    prog = loop_program.program(spec).compile()  # build and compile once
     # the runs alternate with runs of the yardstick's C (200,000 steps, about 20 ms), 20 ms apart, the best
     # of each: both figures come from the same spells of this shared machine's speed
     from _yardstick import yardstick_pass
@@ -104,11 +104,11 @@ def main(argv=None):
           f"python-control nlsys + input_output_response {per_ref * 1e6:.0f} us/step over {args.ref_seconds:g} s "
           f"-> ratio {per_ref / per_c:.0f}x (target 250x, <= 5 ms per run); yaw-rate difference {diff:.1e} rad/s")
     # python-control's own linear interconnection of the same loop: the loop step's Jacobian at
-    # straight running (toolkit.stability.loop_linearisation, a fix every sample: one matrix per
+    # straight running (toolkit.design.stability.loop_linearisation, a fix every sample: one matrix per
     # sample), as a discrete-time ss, its initial-condition response over the same 10 s
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.estimation import design_filter
-    from evstab.toolkit.stability import loop_linearisation
+    from evstab.toolkit.design.stability import loop_linearisation
     lin = loop_linearisation(TwoDofDesign(p.as_nominal()), design_filter("dakf", p, control=True), 25 / 3.6, true_params=p)
     A = lin.monodromy
     k = A.shape[0]
@@ -138,7 +138,7 @@ def main(argv=None):
         from evstab.studies._common import write_markdown
         write_markdown(Path(args.md), ["10 s closed loop at 1 kHz (micro-ev, two-track, dakf + 2-DOF)", "per run",
                                        "per step", "ratio"], [
-            ["evstab compiled (`loop_step` traced, lane kernel in C: toolkit.lanes)", f"{best * 1e3:.1f} ms", f"{per_c * 1e6:.2f} us", "1"],
+            ["evstab compiled (`loop_step` traced, lane kernel in C: toolkit.kernels.lanes)", f"{best * 1e3:.1f} ms", f"{per_c * 1e6:.2f} us", "1"],
             [f"python-control `nlsys` + `input_output_response` on the same step (over {args.ref_seconds:g} s)",
              f"{per_ref * n:.1f} s", f"{per_ref * 1e6:.0f} us", f"{per_ref / per_c:.0f}x slower"],
             [f"python-control linear `ss` of the same loop ({k}-state core), `initial_response`",

@@ -33,8 +33,8 @@ from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.kalman import INPUTS, discretize, initial_state
 from evstab.toolkit.estimation.runner import compiled_filter, inputs_from_columns
 from evstab.toolkit.estimation.spec import continuous_model, gyro_row
-from evstab.toolkit.logio import write_log_table
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import write_log_table
+from evstab.toolkit.loop.simulator import simulate
 
 
 def filterpy_matrices(d, U):

@@ -32,17 +32,17 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit.compiled import compiler
-from evstab.toolkit.design_job import basic_design_document
+from evstab.toolkit.kernels.compiled import compiler
+from evstab.toolkit.design.design_job import basic_design_document
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.firmware.csource import write_inputs_csv
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import ecu_from_design, export_design
 from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 def _timer_source() -> str:
-    """The timing harness, its input rows read in :data:`toolkit.firmware.ecu.INPUTS` order, with the
+    """The timing harness, its input rows read in :data:`toolkit.ecu.step.INPUTS` order, with the
     yardstick's step beside ``evstab_step`` (timed in alternating passes, see :data:`TIMER`)."""
     from _yardstick import STEP_SRC, YARDSTICK_CALL, YARDSTICK_SETUP
     assign = "\n".join(f"        in[k].{name} = {'(int)' if ctype == 'int' else ''}v[{i}];"

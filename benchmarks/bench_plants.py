@@ -1,7 +1,7 @@
 """Plant simulation speed: evstab's compiled rollout vs python-control, same model, same process.
 
 Each plant runs a 0.5 Hz sine steer at 60 km/h for 10 s at 1 kHz through
-:class:`toolkit.compiled.CompiledPlant` (casadi-generated C, one call per 2000
+:class:`toolkit.kernels.compiled.CompiledPlant` (casadi-generated C, one call per 2000
 samples; and casadi's virtual machine when no compiler is used), and through
 ``control.input_output_response`` of a ``control.nlsys`` whose update function
 is the same numpy ``f(x, u, w, p)``. python-control is slow, so by default it
@@ -26,7 +26,7 @@ import control
 import numpy as np
 
 from evstab.plants import COMMANDS, DISTURBANCES, PLANTS, default_disturbance, load_vehicle
-from evstab.toolkit.compiled import CompiledPlant
+from evstab.toolkit.kernels.compiled import CompiledPlant
 
 
 def best_of(fn, repeat):

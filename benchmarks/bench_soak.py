@@ -6,7 +6,7 @@ The drive is a seeded random sequence of segments: a target speed drawn from 0-1
 a slow weave (road-wheel amplitudes for 1-4 m/s^2 of lateral acceleration on the linear
 car, at most 0.3 rad). GPS outages of 5-60 s are scattered over the hour (about one in
 four minutes). The whole loop runs compiled (two-track plant, sensors, ``dakf``, 2-DOF
-controller, actuators; :mod:`toolkit.closed_loop`) in blocks of 10 s, the loop state
+controller, actuators; :mod:`toolkit.loop.closed_loop`) in blocks of 10 s, the loop state
 carried over, and after every block the filter's covariance is checked: symmetric to
 1e-12 relative and positive definite (smallest eigenvalue > 0), every signal finite.
 Estimation errors (sideslip, yaw rate) are reported over the hour and per speed band.
@@ -32,7 +32,8 @@ from evstab.plants import TRUTH, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import Maneuver
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit.closed_loop import CHUNK, EXTRA, INPUTS, latch_schedule_parts, loop_spec, program
+from evstab.toolkit.loop.closed_loop import CHUNK, EXTRA, INPUTS, latch_schedule_parts, loop_spec
+from evstab.toolkit.loop.loop_program import program
 from evstab.toolkit.estimation import kalman
 
 DT = 1e-3

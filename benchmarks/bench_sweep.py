@@ -23,9 +23,10 @@ import numpy as np
 
 from evstab.plants import TRUTH, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
-from evstab.toolkit import sweep as sw
-from evstab.toolkit.closed_loop import EXTRA, program
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.design import sweep as sw
+from evstab.toolkit.loop.closed_loop import EXTRA
+from evstab.toolkit.loop.loop_program import program
+from evstab.toolkit.loop.simulator import simulate
 
 
 def random_cases(n: int, seed: int = 11) -> list[sw.Case]:
@@ -61,8 +62,8 @@ def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
     compiler."""
     import _plant
     from _yardstick import yardstick_pass
-    from evstab.toolkit.closed_loop import samples
-    from evstab.toolkit.lanes import native_width
+    from evstab.toolkit.loop.closed_loop import samples
+    from evstab.toolkit.kernels.lanes import native_width
     prog = program(cfg.spec())
     kernel, one_yardstick = _plant.plant_kernel(prog.spec), yardstick_pass()
     if prog.lanes is None or kernel is None or one_yardstick is None:

@@ -6,7 +6,7 @@ reference of seed 003 eq. 23-24 (:func:`controllers.two_dof.reference`); the ste
 ``k_p = 10 1/s``, ``k_i = 25 1/s^2`` give a well-damped yaw loop for the nominal car. Conditional
 integration while the yaw moment is limited; below ``min_speed`` the driver passes through.
 Written once for numpy and casadi, like the 2-DOF law. (No control at all is the ECU's
-pass-through, :class:`toolkit.loop_ecu.LoopEcu` kind ``none``.)
+pass-through, :class:`toolkit.loop.loop_ecu.LoopEcu` kind ``none``.)
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ With numbers the segment is looked up (the exported C does the same); with casad
 symbols the same interpolation is written as a sum over the grid's hat functions,
 ``w_i = max(0, min((x - x_{i-1}) / (x_i - x_{i-1}), (x_{i+1} - x) / (x_{i+1} - x_i)))``.
 Traced inside :func:`plants.backend.call_nodes`, the sums go into one casadi function per table that the
-trace calls (a ``never_inline`` call node), which a lane kernel (:mod:`toolkit.lanes`) runs
+trace calls (a ``never_inline`` call node), which a lane kernel (:mod:`toolkit.kernels.lanes`) runs
 as the segment lookup, the firmware's arithmetic, instead of the 32-term sums; elsewhere
 (differentiation, casadi's code generation) they stay inline. Any strictly increasing axis
 works.

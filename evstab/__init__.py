@@ -38,11 +38,11 @@ _API = {
     "load_vehicle": ("evstab.plants", "load_vehicle"),
     "bundled_vehicles": ("evstab.plants", "bundled_vehicles"),
     "make_maneuver": ("evstab.plants.maneuvers", "make_maneuver"),
-    "simulate": ("evstab.toolkit.simulator", "simulate"),
-    "run_design": ("evstab.toolkit.design_job", "run_design"),
-    "load_design": ("evstab.toolkit.design_job", "load_design"),
+    "simulate": ("evstab.toolkit.loop.simulator", "simulate"),
+    "run_design": ("evstab.toolkit.design.design_job", "run_design"),
+    "load_design": ("evstab.toolkit.design.design_job", "load_design"),
     "export_design": ("evstab.toolkit.firmware.export", "export_design"),
-    "run_series": ("evstab.toolkit.fmvss126", "run_series"),
+    "run_series": ("evstab.toolkit.verdicts.fmvss126", "run_series"),
     "EvstabError": ("evstab.plants.errors", "EvstabError"),
 }
 __all__ = ["__version__", *_API]

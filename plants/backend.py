@@ -21,7 +21,7 @@ _CASADI_TYPES = (ca.SX, ca.MX, ca.DM)
 LANE_INTRINSICS: dict[str, str] = {}
 """C for casadi functions that a traced step calls (``never_inline`` call nodes): casadi function
 name -> C text defining ``EV_INLINE void <name>(const vd* in, vd* out)`` on lane vectors. A lane
-kernel (:mod:`toolkit.lanes`) runs it in place of the call; casadi's own C and virtual machine
+kernel (:mod:`toolkit.kernels.lanes`) runs it in place of the call; casadi's own C and virtual machine
 evaluate the function's body."""
 
 _CALL_NODES = [False]

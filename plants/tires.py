@@ -27,7 +27,7 @@ positive when driving; slip angle ``alpha = atan(v_y / v_ref)`` of the wheel
 centre velocity, and the lateral force opposes it.
 
 The shape function is evaluated from a table where it is hot (:class:`ShapeTable`): for the
-default shape and curvature, numbers and lane kernels (:mod:`toolkit.lanes`) read ``F(u) / u`` from
+default shape and curvature, numbers and lane kernels (:mod:`toolkit.kernels.lanes`) read ``F(u) / u`` from
 quintic Hermite segments on ``w = 1 / (1 + u)`` (512 of them, exact values and first two
 derivatives at the grid points), one division and a degree-5 polynomial in place of two
 arc tangents, a sine and a division. It equals the formula to 9e-16 in ``F / u`` and 3e-15
@@ -150,7 +150,7 @@ class ShapeTable:
         """C of :meth:`ratio` on lane vectors (``EV_INLINE void name(const vd* in, vd* out)``, ``in[0]``
         the slip ``u``, ``in[1]`` and ``in[2]`` the shape and curvature): lanes with this table's shape
         and curvature read the table, others evaluate the formula (the casadi function's body, the
-        Cephes functions of :mod:`toolkit.lane_math`)."""
+        Cephes functions of :mod:`toolkit.kernels.lane_math`)."""
         n = self.segments
         rows = ",\n        ".join("{" + ", ".join(repr(float(c)) for c in row) + "}" for row in self.coeffs)
         return f"""EV_INLINE void {self.name}(const vd* in, vd* out) {{

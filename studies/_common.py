@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evstab.toolkit.logio import atomic_write
+from evstab.toolkit.logs.drivelog import atomic_write
 
 
 def out_dir(path) -> Path:

@@ -1,4 +1,4 @@
-"""The envelope (:mod:`toolkit.envelope`): every manoeuvre, five noise seeds, three cars, the car
+"""The envelope (:mod:`toolkit.verdicts.envelope`): every manoeuvre, five noise seeds, three cars, the car
 alone and the default ECU, judged by the envelope's rules.
 
 Cars: compact-ev on the two-track (the ECU's model exact), and CommonRoad's multi-body Escort
@@ -24,7 +24,7 @@ import numpy as np
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_markdown, write_table
 from evstab.studies.control_mb_fmvss126 import wrong_nominal
-from evstab.toolkit import envelope as ev
+from evstab.toolkit.verdicts import envelope as ev
 
 SEEDS = (0, 1, 2, 3, 4)
 CARS = ("two-track", "commonroad-mb:1", "commonroad-mb:3")

@@ -19,7 +19,7 @@ from evstab.plants.disturbances import Disturbances, default_wind
 from evstab.plants.maneuvers import step_steer
 from evstab.studies._common import cli, out_dir, save_figure, write_markdown, write_table
 from evstab.studies._common import seed_003_design
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 

@@ -18,7 +18,7 @@ from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import Maneuver
 from evstab.studies._common import cli, out_dir, save_figure, write_table
 from evstab.studies._common import seed_003_design
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def cornering(speed: float, peak: float, start: float = 1.0, ramp: float = 1.0, hold: float = 3.0,

@@ -17,7 +17,7 @@ from evstab.plants import load_vehicle
 import numpy as np
 
 from evstab.studies._common import cli, out_dir, seed_003_design, write_markdown, write_table
-from evstab.toolkit.fmvss126 import find_a, run_series
+from evstab.toolkit.verdicts.fmvss126 import find_a, run_series
 
 MUS = (1.0, 0.6)
 

@@ -1,11 +1,11 @@
-"""The limit manoeuvres of the design job (:mod:`toolkit.limits`) and the straight road, for the
+"""The limit manoeuvres of the design job (:mod:`toolkit.design.limits`) and the straight road, for the
 compact EV on the two-track: no control, seed 003's controller as the paper runs it, evstab's
 default supervised 2-DOF controller and, with ``--design DIR``, a design folder's ECU as
 exported; ``dakf`` in the loop, the ECU not told the friction.
 
 * FMVSS 126 on mu 1.0 and 0.6 (runs passed of the full series);
 * ISO 3888-1 at 80 and 100 km/h on mu 1.0, 0.8, 0.5 and the step steer into saturation on mu
-  1.0 and 0.5 (peak sideslip [deg]; "no worse" is :func:`toolkit.limits.no_worse` against no
+  1.0 and 0.5 (peak sideslip [deg]; "no worse" is :func:`toolkit.design.limits.no_worse` against no
   control);
 * straight road at 60 and 80 km/h with the default sensor noise: steer and yaw moment the ECU
   adds to the driver's (RMS and peak).
@@ -25,9 +25,9 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import step_steer
 from evstab.studies._common import out_dir, seed_003_design, write_table
-from evstab.toolkit import limits as lm
-from evstab.toolkit.simulator import simulate
-from evstab.toolkit.sweep import SweepConfig
+from evstab.toolkit.design import limits as lm
+from evstab.toolkit.loop.simulator import simulate
+from evstab.toolkit.design.sweep import SweepConfig
 
 
 def controllers(p, design_dir=None) -> list[tuple[str, object]]:

@@ -18,12 +18,12 @@ import dataclasses
 
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_markdown, write_table
-from evstab.toolkit.design_job import run_design
+from evstab.toolkit.design.design_job import run_design
 from evstab.toolkit.firmware.export import ecu_from_design
-from evstab.toolkit.fmvss126 import find_a, run_series
-from evstab.toolkit.logio import atomic_write
-from evstab.toolkit.loop_ecu import loop_ecu
-from evstab.toolkit.nominal import to_toml
+from evstab.toolkit.verdicts.fmvss126 import find_a, run_series
+from evstab.toolkit.logs.drivelog import atomic_write
+from evstab.toolkit.loop.loop_ecu import loop_ecu
+from evstab.toolkit.design.nominal import to_toml
 
 STIFFNESS_ERROR = 1.4
 CARS = (1, 2, 3)

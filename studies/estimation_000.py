@@ -6,7 +6,7 @@
    error RMS / max over the manoeuvre for ``two-stage`` (000), ``dakf``, ``mbkf``, ``kkf``;
    and the two-stage sideslip moved to the rear axle by the lever arm (000 eq. 28-29)
    against the true rear-axle sideslip.
-2. **Time synchronisation** (`toolkit.timesync`): the GPS course and ground speed of the
+2. **Time synchronisation** (`toolkit.logs.timesync`): the GPS course and ground speed of the
    mu 0.9 run, sampled at their true instants, stamped with a 100 ms delay (known, taken
    off) and Gaussian jitter of 0 / 10 / 20 / 40 ms, resampled onto the 1 kHz IMU rows by
    linear, cubic Lagrange and 000's fuzzy interpolation (subtractive clustering ra 0.6,
@@ -28,10 +28,10 @@ from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import dlc_000
 from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, save_figure, write_table
-from evstab.toolkit import timesync
+from evstab.toolkit.logs import timesync
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.two_stage import sideslip_at
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 SPEED = 120 / 3.6
 LEAD_IN = 600.0

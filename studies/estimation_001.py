@@ -46,7 +46,7 @@ def drive(p, plant: str, scale_error: float, seed: int):
 
 
 def simulate_log(p, plant, man, sensors, seed):
-    from evstab.toolkit.simulator import simulate
+    from evstab.toolkit.loop.simulator import simulate
     return simulate(p, plant, man, sensors=sensors, seed=seed).log_columns()
 
 

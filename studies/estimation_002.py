@@ -26,7 +26,7 @@ from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.dual_antenna import bank_estimate
 from evstab.toolkit.estimation.identify import cornering_stiffness
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 SPEED, RADIUS, LEAD_IN = 16.0, 50.0, 300.0
 BANKS_DEG = (0.0, -5.0)

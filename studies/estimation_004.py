@@ -23,7 +23,7 @@ from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, save_figure, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.double_layer import layer2, roll_kf, roll_model_error, velocity_kf
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 SPEED = 25 / 3.6
 

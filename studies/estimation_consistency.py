@@ -22,7 +22,7 @@ from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, write_markdown, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.diagnostics import nis_consistency, used_residuals
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 SPEED = 60 / 3.6
 AY = 3.0

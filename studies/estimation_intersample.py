@@ -19,7 +19,7 @@ from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import sine_lane_change
 from evstab.studies._common import cli, out_dir, save_figure, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def main(out, quick: bool = False) -> list[dict]:

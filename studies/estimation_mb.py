@@ -40,8 +40,8 @@ from evstab.plants.maneuvers import dlc_000, ramp_steer, sine_lane_change, sine_
 from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, pivot, write_markdown, write_table
 from evstab.toolkit.estimation import design_filter, run_estimator
-from evstab.toolkit.estimation.evaluate import _inject_bad_fixes
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.verdicts.estimators import _inject_bad_fixes
+from evstab.toolkit.loop.simulator import simulate
 
 CARS = (1, 2, 3)
 METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "dakf (ECU, no kinematic path)", "kf", "mbkf",

@@ -12,7 +12,7 @@ Run: ``python -m evstab.studies.estimation_robustness OUT_DIR [--quick]``
 from __future__ import annotations
 
 from evstab.studies._common import cli, out_dir, pivot, write_markdown, write_table
-from evstab.toolkit.estimation.evaluate import robustness_table
+from evstab.toolkit.verdicts.estimators import robustness_table
 
 
 def main(out, quick: bool = False) -> list[dict]:

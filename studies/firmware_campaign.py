@@ -6,9 +6,9 @@ Each run draws, from one seeded generator (:data:`SEED`): a car (compact-ev on t
 Escort and the BMW 320i, ``commonroad-mb:1``/``:2``, whose ECU is designed on the bundled nominal with every
 cornering stiffness +40 %: :func:`studies.control_mb_fmvss126.wrong_nominal`), a manoeuvre (ISO 3888-1
 lane change at 60-100 km/h on mu 0.5-1.0, or a sine with dwell at 80 km/h, 4-6.5 times the road-wheel
-steer of 0.3 g in the ECU's linear model, on mu 0.5-1.0), a sensor-noise seed, and one fault (:class:`toolkit.ecu_faults.EcuFault`): an input
+steer of 0.3 g in the ECU's linear model, on mu 0.5-1.0), a sensor-noise seed, and one fault (:class:`toolkit.loop.ecu_faults.EcuFault`): an input
 among the eleven the guard checks, or an ECU reset; a kind among NaN, +Inf, a value anywhere in the
-input's plausible span, an offset of up to twice :data:`toolkit.ecu_faults.OFFSETS`, a scale of 0.5-1.5,
+input's plausible span, an offset of up to twice :data:`toolkit.loop.ecu_faults.OFFSETS`, a scale of 0.5-1.5,
 stuck; a start anywhere in the manoeuvre's first 4 s and a length of 1 ms to 2 s (log-uniform; a reset
 boots 1-100 ms).
 
@@ -41,9 +41,9 @@ from evstab.plants.maneuvers import make_maneuver, steer_for_lateral_acceleratio
 from evstab.studies._common import out_dir, write_markdown, write_table
 from evstab.studies.control_mb_fmvss126 import CAR_NAMES, wrong_nominal
 from evstab.studies.firmware_faults import no_harm, peak_beta_deg
-from evstab.toolkit.ecu_faults import ECU, OFFSETS, EcuFault
-from evstab.toolkit.loop_ecu import loop_ecu
-from evstab.toolkit.simulator import RolloverError, simulate
+from evstab.toolkit.loop.ecu_faults import ECU, OFFSETS, EcuFault
+from evstab.toolkit.loop.loop_ecu import loop_ecu
+from evstab.toolkit.loop.simulator import RolloverError, simulate
 
 SEED = 20261203
 RUNS = {"two-track": 120, "commonroad-mb:1": 40, "commonroad-mb:2": 40}

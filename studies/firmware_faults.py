@@ -1,9 +1,9 @@
 """Single faults on every ECU input in the closed loop: what the ECU commands when an input goes wrong.
 
-The ECU (compact-ev, evstab's default filter and law, with its input guard: :mod:`toolkit.firmware.guard`)
-closes the loop on the two-track plant; :func:`toolkit.ecu_faults.single_faults` injects, between the
+The ECU (compact-ev, evstab's default filter and law, with its input guard: :mod:`toolkit.ecu.guard`)
+closes the loop on the two-track plant; :func:`toolkit.loop.ecu_faults.single_faults` injects, between the
 sensors and the ECU, one fault at a time on each input: one NaN sample, NaN for 0.5 s, one +Inf sample, one
-spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolkit.ecu_faults.OFFSETS`).
+spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolkit.loop.ecu_faults.OFFSETS`).
 
 * **Straight road** at 60 and 120 km/h (6 s, the fault at 3 s, seed 1): every command finite; the largest
   steer the ECU adds to the driver's and yaw moment it commands, and for how long it intervenes (steer
@@ -12,7 +12,7 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
   100 ms (:data:`STEER_MAX_DEG`, :data:`YAW_MOMENT_MAX`, :data:`INTERVENTION_MAX_S`).
 * **ISO 3888-1 lane change** at 80 km/h on mu 1.0 and 100 km/h on mu 0.5 (seeds 0-2), the fault from the
   driver's first steer: the peak sideslip against the car alone's, by the envelope's no-harm rule
-  (:func:`toolkit.envelope.judge`: at most 1.1 x the car alone's or 0.3 deg more), and by the same rule
+  (:func:`toolkit.verdicts.envelope.judge`: at most 1.1 x the car alone's or 0.3 deg more), and by the same rule
   against the controlled car without the fault (where the law alone already breaks the rule, a row reads
   "as without the fault" when the fault adds nothing beyond it).
 
@@ -45,11 +45,11 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import constant_radius, make_maneuver
 from evstab.studies._common import out_dir, write_markdown, write_table
-from evstab.toolkit.ecu_faults import EcuFault, single_faults
-from evstab.toolkit.envelope import HARM_FACTOR, HARM_MARGIN_DEG
-from evstab.toolkit.firmware.guard import FAULT_BITS, GuardSettings
-from evstab.toolkit.loop_ecu import loop_ecu
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.ecu_faults import EcuFault, single_faults
+from evstab.toolkit.verdicts.envelope import HARM_FACTOR, HARM_MARGIN_DEG
+from evstab.toolkit.ecu.guard import FAULT_BITS, GuardSettings
+from evstab.toolkit.loop.loop_ecu import loop_ecu
+from evstab.toolkit.loop.simulator import simulate
 
 STEER_MAX_DEG = 0.5
 YAW_MOMENT_MAX = 300.0
@@ -125,7 +125,7 @@ def shadow_commands(ecu, r) -> tuple[np.ndarray, np.ndarray]:
     """The steer and yaw-moment commands an ECU that never reset would have issued on run ``r``'s inputs:
     the ECU step replayed (:func:`toolkit.firmware.replay.ecu_program`) over the run's own sensor log, so
     that the comparison is with the same car on the same path (two closed-loop runs part ways)."""
-    from evstab.toolkit.firmware.ecu import OUTPUTS
+    from evstab.toolkit.ecu.step import OUTPUTS
     from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
     U = ecu_inputs(r.log_columns(), ecu.controller.mu_max, wheel_radius=ecu.wheel_radius)
     y = OUTPUTS.columns(ecu_program(ecu).run(U))

@@ -2,13 +2,13 @@
 
 The loop is closed in Python, one ECU period at a time, the way a vehicle simulator closes it around an FMU:
 FMPy (``fmpy``, a test extra) runs ``evstab_ecu.fmu`` (``evstab export --fmu``: the exported C step), evstab's
-compiled two-track plant (:class:`toolkit.compiled.CompiledPlant`) the car. The sensors are the plant's
+compiled two-track plant (:class:`toolkit.kernels.compiled.CompiledPlant`) the car. The sensors are the plant's
 outputs of the previous period (one period of delay): speed ``vx``, yaw rate, lateral acceleration, the rear
 wheel speeds, the road-wheel steer as last commanded, and a 5 Hz GPS course ``yaw + beta`` (HDOP 1, 10
 satellites); no noise and no road-friction sensor. The actuators are ideal: the steer command is the road-wheel
 angle, the yaw-moment command the rear motors' moment. The car alone runs the same loop with the driver's
 steer and no yaw moment. Runs: the two largest amplitudes of the standard's series at 80 km/h on mu 1
-(``A`` from the standard's slowly increasing steer, :func:`toolkit.fmvss126.find_a`), steered left.
+(``A`` from the standard's slowly increasing steer, :func:`toolkit.verdicts.fmvss126.find_a`), steered left.
 
 Outputs: ``fmu_fmvss126.csv`` / ``fmu_fmvss126.md`` (per run: amplitude, controller, yaw-rate ratios at COS +
 1.0 and 1.75 s, lateral displacement, peak sideslip, verdict).
@@ -28,12 +28,12 @@ from evstab.plants import get_plant, load_vehicle
 from evstab.plants.maneuvers import sine_with_dwell
 from evstab.plants.model import COMMANDS, DISTURBANCES, TRUTH
 from evstab.studies._common import cli, out_dir, write_table
-from evstab.toolkit.compiled import CompiledPlant
-from evstab.toolkit.design_job import default_design_document
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS
+from evstab.toolkit.kernels.compiled import CompiledPlant
+from evstab.toolkit.design.design_job import default_design_document
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import export_design
 from evstab.toolkit.firmware.fmu import FMU_NAME, MODEL_IDENTIFIER, VR_OUTPUT
-from evstab.toolkit.fmvss126 import SPEED, amplitudes, find_a, score_swd
+from evstab.toolkit.verdicts.fmvss126 import SPEED, amplitudes, find_a, score_swd
 
 MU = 1.0
 GPS_EVERY = 200

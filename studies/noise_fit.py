@@ -22,7 +22,7 @@ from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, write_markdown, write_table
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.estimation.noise_fit import fit_noise
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 TRUE = {"gyro_std": 0.006, "gps_velocity_std": 0.08}
 """The log's sensor noises (the filter's names for them)."""

@@ -1,6 +1,6 @@
 """The nominal files of the CommonRoad multi-body cars: the cornering stiffness fitted to each car.
 
-For each parameter set, the output-error fit of ``evstab derive-nominal`` (:mod:`toolkit.nominal`:
+For each parameter set, the output-error fit of ``evstab derive-nominal`` (:mod:`toolkit.design.nominal`:
 the linear bicycle's yaw rate and lateral acceleration against the multi-body car's in small-steer
 runs at 40, 60, 80, 100 km/h), beside the tyre's own slope times static load, the fit's
 residuals and the understeer gradient of the fitted model. Writes ``nominal_fits.csv`` and
@@ -15,7 +15,7 @@ import numpy as np
 
 from evstab.plants import commonroad_mb
 from evstab.studies._common import cli, out_dir, write_markdown, write_table
-from evstab.toolkit.nominal import FIT_SPEEDS_KMH, geometry, identify_cornering_stiffness, small_steer_runs
+from evstab.toolkit.design.nominal import FIT_SPEEDS_KMH, geometry, identify_cornering_stiffness, small_steer_runs
 
 
 def main(out, quick: bool = False) -> list[dict]:

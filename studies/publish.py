@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from evstab.plants.errors import DataError
-from evstab.toolkit.logio import atomic_write
+from evstab.toolkit.logs.drivelog import atomic_write
 
 BLOCK = re.compile(r"<!-- results: (?P<path>[^|>]+?) \| (?P<command>[^>]+?) -->\n(?P<body>.*?)<!-- /results -->",
                    re.S)

@@ -11,7 +11,7 @@ in ``studies/maps/``):
   ABS wheel speeds, a right-positive accelerometer) with the Correvit sideslip; no GNSS.
 
 Where a drive has no course of its own, a single-antenna receiver is emulated from the reference
-(:mod:`toolkit.emulate`: course = integrated reference yaw rate + reference sideslip, 5 Hz, noise
+(:mod:`toolkit.logs.emulate`: course = integrated reference yaw rate + reference sideslip, 5 Hz, noise
 0.04 m/s x HDOP 1 over the speed), with the gyro as logged (``reference``) and a production gyro
 (``production``: 3 mrad/s bias, +1 % scale, 1.5 mrad/s noise), over :data:`SEEDS` noise seeds. The
 OBD sample's gyro is already a production one and stays as logged. Nominal models: the GTI's
@@ -44,8 +44,8 @@ import numpy as np
 
 from evstab.plants import load_vehicle
 from evstab.studies._common import out_dir, pivot, write_markdown, write_table
-from evstab.toolkit.channels import load_channel_map, read_mapped
-from evstab.toolkit.emulate import PRODUCTION_GYRO, Emulation, emulate
+from evstab.toolkit.logs.channels import load_channel_map, read_mapped
+from evstab.toolkit.logs.emulate import PRODUCTION_GYRO, Emulation, emulate
 from evstab.toolkit.estimation import METHODS, design_filter, run_estimator
 from evstab.toolkit.estimation.spec import METHOD_COLUMNS, estimation_noise
 

@@ -2,7 +2,7 @@
 
 A 90 s drive of compact-ev on the two-track plant (70 km/h, a 0.2 Hz weave asking
 2 m/s^2, GPS at 5 Hz, the default sensor noise, bias and latency-free fixes). At
-t = 30 s one fault is injected (the windowed ones last 15 s; :mod:`toolkit.faults`),
+t = 30 s one fault is injected (the windowed ones last 15 s; :mod:`toolkit.logs.faults`),
 and ``dakf`` runs over the log twice: as ``evstab estimate`` runs it (screened,
 :mod:`toolkit.estimation.monitor`) and with ``--no-monitor``. The GPS time fault goes
 the way a recorded one comes in: the fixes are written as NMEA (pynmea2), one epoch's
@@ -31,11 +31,11 @@ from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import Maneuver, steer_for_lateral_acceleration
 from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, save_figure, write_table
-from evstab.toolkit import faults as F
+from evstab.toolkit.logs import faults as F
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.monitor import FLAGS
-from evstab.toolkit.nmea import merge_onto_imu, read_nmea, write_nmea
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.nmea import merge_onto_imu, read_nmea, write_nmea
+from evstab.toolkit.loop.simulator import simulate
 
 T_FAULT = 30.0
 WINDOW = 15.0

@@ -1,6 +1,6 @@
 """How far the design job's tuning moves with rounding.
 
-The design job's tuning (:func:`toolkit.tuning.tune`) on compact-ev with the job's own tuning set,
+The design job's tuning (:func:`toolkit.design.tuning.tune`) on compact-ev with the job's own tuning set,
 caps, starting FMVSS 126 displacement runs, margin constraint and starts (the full run's, or with ``--quick`` the
 quick run's), once as built and again with its cost gradient multiplied by ``1 + 1e-12 N(0, 1)`` (seeded): a different
 compiler, library or machine rounds differently, and IPOPT's path on these costs (spins in the
@@ -18,9 +18,9 @@ import numpy as np
 
 from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_table
-from evstab.toolkit import limits as lm, sweep as sw
-from evstab.toolkit.selection import TUNING_STARTS, regression_caps, tuning_ids
-from evstab.toolkit.tuning import MarginConstraint, RolloutCost, tune
+from evstab.toolkit.design import limits as lm, sweep as sw
+from evstab.toolkit.design.selection import TUNING_STARTS, regression_caps, tuning_ids
+from evstab.toolkit.design.tuning import MarginConstraint, RolloutCost, tune
 
 PERTURBATION = 1e-12
 """Relative size of the gradient's perturbation: the order of the rounding two builds of the same

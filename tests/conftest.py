@@ -29,7 +29,7 @@ def default_design_dir(tmp_path_factory):
     on the nominal model, written directly (no design job): what the firmware tests export."""
     import json
 
-    from evstab.toolkit.design_job import default_design_document
+    from evstab.toolkit.design.design_job import default_design_document
 
     doc = default_design_document("test fixture")
     out = tmp_path_factory.mktemp("default_design")

@@ -23,17 +23,17 @@ ENVELOPE_TESTS = ("tests/toolkit/test_envelope.py",)
 MARGIN_TESTS = ("tests/toolkit/test_margins.py",)
 
 CONSTANTS = {
-    "toolkit/fmvss126.py": (FMVSS_TESTS, (
+    "toolkit/verdicts/fmvss126.py": (FMVSS_TESTS, (
         "SPEED", "YAW_RATIO_1_0_MAX", "YAW_RATIO_1_75_MAX", "T_YAW_1_0", "T_YAW_1_75", "LATERAL_DISPLACEMENT_MIN",
         "T_DISPLACEMENT", "DISPLACEMENT_FROM_A", "BOS_DEG", "HANDWHEEL_FILTER_HZ", "MOTION_FILTER_HZ",
         "HANDWHEEL_RATE", "A_G", "REGRESSION_FROM_G", "REGRESSION_TO_G", "SIS_END_G", "SIS_END_FACTOR",
         "SIS_END_MAX_DEG", "AMPLITUDE_FIRST_A", "AMPLITUDE_STEP_A", "AMPLITUDE_LAST_A", "AMPLITUDE_LAST_DEG",
         "AMPLITUDE_CAP_DEG")),
-    "toolkit/envelope.py": (ENVELOPE_TESTS, (
+    "toolkit/verdicts/envelope.py": (ENVELOPE_TESTS, (
         "HARM_FACTOR", "HARM_MARGIN_DEG", "SLIDE_DEG", "HELD_DEG", "NORMAL_USE", "QUIET_STEER_DEG",
         "QUIET_YAW_MOMENT", "GUST_SHARE", "GUST_AFTER", "OVERHANG")),
-    "toolkit/stability.py": (MARGIN_TESTS, ("DISK_MARGIN_MIN", "SENSITIVITY_PEAK_MAX")),
-    "toolkit/limits.py": (tuple(f"tests/toolkit/test_limits.py::{t}" for t in (
+    "toolkit/design/stability.py": (MARGIN_TESTS, ("DISK_MARGIN_MIN", "SENSITIVITY_PEAK_MAX")),
+    "toolkit/design/limits.py": (tuple(f"tests/toolkit/test_limits.py::{t}" for t in (
         "test_sideslip_bound_follows_the_uncontrolled_car", "test_a_car_past_10_deg_of_sideslip_has_spun",
         "test_the_uncontrolled_slide_is_judged_against_10_deg", "test_the_step_case_asks_one_and_a_half_times_the_friction")),
         ("SPIN_DEG", "SIDESLIP_FACTOR", "SIDESLIP_FLOOR_DEG", "STEP_SATURATION")),

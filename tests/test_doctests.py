@@ -6,7 +6,7 @@ import importlib
 
 import pytest
 
-MODULES = ("evstab.plants.params", "evstab.plants.maneuvers", "evstab.plants.bicycle", "evstab.toolkit.simulator")
+MODULES = ("evstab.plants.params", "evstab.plants.maneuvers", "evstab.plants.bicycle", "evstab.toolkit.loop.simulator")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -56,7 +56,7 @@ def test_the_wheel_holds_one_top_level_package(tmp_path):
 def test_the_formats_page_carries_the_codes_tables():
     # docs/formats.md's drive-log and vehicle tables are printed from the reader's schema and the
     # validator's fields: the page may not drift from them
-    from evstab.toolkit.docs import drive_log_table, vehicle_table
+    from evstab.toolkit.logs.formats import drive_log_table, vehicle_table
     page = (ROOT / "docs" / "formats.md").read_text()
     for row in (drive_log_table() + "\n" + vehicle_table()).splitlines():
         assert row in page, row

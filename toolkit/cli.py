@@ -41,15 +41,15 @@ def cmd_vehicles(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from .plotting import plot_run
-    from .simulator import simulate
+    from .loop.plotting import plot_run
+    from .loop.simulator import simulate
 
     p = load_vehicle(args.vehicle)
     speed = args.speed / 3.6
     amplitude = None if args.amplitude is None else np.radians(args.amplitude)
     man = make_maneuver(args.maneuver, p, speed, amplitude)
     if man.open_loop:  # a road-wheel angle no car has: refused before the run, with the limit
-        from .logio import PLAUSIBLE
+        from .logs.drivelog import PLAUSIBLE
         peak = float(np.max(np.abs(man.steer(np.linspace(0.0, man.duration, 20001)))))
         limit = PLAUSIBLE["steer"][1]
         if peak > limit:
@@ -63,7 +63,7 @@ def cmd_simulate(args) -> int:
     controller, estimator, design = _loop_choice(args)
     res = simulate(p, args.plant, man, disturbances=dist, sensors=sensors, seed=args.seed, dt=args.dt,
                    controller=controller, estimator=estimator, design=design)
-    from .logio import DriveLog, LogFormatError, check_ranges
+    from .logs.drivelog import DriveLog, LogFormatError, check_ranges
     try:  # never write a log that the reader would refuse
         check_ranges(DriveLog(res.log_columns(), "the simulated run"))
     except LogFormatError as exc:
@@ -102,10 +102,10 @@ def _loop_choice(args):
 
 
 def _check_log(log, args, params=None) -> None:
-    """Unit mistakes found by consistency (:func:`toolkit.logio.check_units`; with the vehicle ``params`` also
-    :func:`toolkit.logio.check_steer`), and a log without a usable GPS fix; ``--trust-units`` skips the unit
+    """Unit mistakes found by consistency (:func:`toolkit.logs.drivelog.check_units`; with the vehicle ``params`` also
+    :func:`toolkit.logs.drivelog.check_steer`), and a log without a usable GPS fix; ``--trust-units`` skips the unit
     checks."""
-    from .logio import check_steer, check_units
+    from .logs.drivelog import check_steer, check_units
     if not np.any(np.isfinite(log["gps_course"])):
         raise EvstabError(f"{log.source}: no GPS fix (column 'gps_course' is empty on every row): nothing to "
                           "correct the gyro with; for a log made by 'evstab convert --nmea', check --time-offset")
@@ -118,7 +118,8 @@ def _check_log(log, args, params=None) -> None:
 def cmd_estimate(args) -> int:
     from .estimation import design_filter, run_estimator
     from .estimation.kalman import OUTPUTS
-    from .logio import read_log, write_log_table
+    from .logs.channels import read_log
+    from .logs.drivelog import write_log_table
 
     if (args.vehicle is None) == (args.design is None):
         raise EvstabError("give --vehicle (a filter designed from its nominal parameters) or --design (the "
@@ -192,10 +193,10 @@ ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_st
 
 
 def _replay(args):
-    from .firmware.ecu import OUTPUTS
+    from .ecu.step import OUTPUTS
     from .firmware.export import ecu_from_design
     from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
-    from .logio import read_log
+    from .logs.channels import read_log
 
     d, _ = ecu_from_design(args.design)
     log = read_log(args.log, LOG_COLUMNS, args.channel_map).without_truth()
@@ -257,8 +258,8 @@ def tune_warning(fit) -> str | None:
 
 
 def _estimate_designed(args) -> int:
-    from .firmware.ecu import INPUTS, OUTPUTS
-    from .logio import write_log_table
+    from .ecu.step import INPUTS, OUTPUTS
+    from .logs.drivelog import write_log_table
 
     if args.method != "dakf" or args.gps_latency != 0.0 or args.noise or args.tune:
         raise EvstabError("--method, --gps-latency and the noise (--noise, --tune) come from the design with --design; "
@@ -274,8 +275,8 @@ def _estimate_designed(args) -> int:
 
 def cmd_replay(args) -> int:
     from .firmware.csource import write_inputs_csv
-    from .firmware.ecu import OUTPUTS
-    from .logio import atomic_write, write_log_table
+    from .ecu.step import OUTPUTS
+    from .logs.drivelog import atomic_write, write_log_table
 
     d, log, U, Y, backend = _replay(args)
     cols = {"t": log["t"]}
@@ -291,10 +292,11 @@ def cmd_replay(args) -> int:
 
 
 def cmd_convert(args) -> int:
-    from .logio import REQUIRED, read_log, read_log_csv, write_log_csv
-    from .nmea import merge_onto_imu, read_nmea
+    from .logs.channels import read_log
+    from .logs.drivelog import REQUIRED, read_log_csv, write_log_csv
+    from .logs.nmea import merge_onto_imu, read_nmea
 
-    from .channels import source_kind
+    from .logs.channels import source_kind
     for flag, what in (("mcap", "an MCAP file (.mcap)"), ("can", "a CAN trace (.blf, .asc)")):
         given = getattr(args, flag)
         if given is None:
@@ -335,7 +337,7 @@ def cmd_convert(args) -> int:
                               f"each drive-log column (docs/formats.md)")
         from pathlib import Path
 
-        from .channels import load_channel_map
+        from .logs.channels import load_channel_map
         cmap = load_channel_map(args.channel_map)
         if args.dbc is not None:
             if source_kind(args.log) != "can":
@@ -356,8 +358,9 @@ def cmd_convert(args) -> int:
 
 
 def cmd_emulate(args) -> int:
-    from .emulate import PRODUCTION_GYRO, Emulation, emulate, write_metadata
-    from .logio import read_log, write_log_csv
+    from .logs.emulate import PRODUCTION_GYRO, Emulation, emulate, write_metadata
+    from .logs.channels import read_log
+    from .logs.drivelog import write_log_csv
 
     log = read_log(args.log, None, args.channel_map)
     gyro = dict(PRODUCTION_GYRO) if args.gyro == "production" else {"gyro": "reference"}
@@ -410,8 +413,8 @@ def cmd_export(args) -> int:
 def cmd_fmvss126(args) -> int:
     import json
 
-    from .fmvss126 import run_series
-    from .logio import atomic_write
+    from .verdicts.fmvss126 import run_series
+    from .logs.drivelog import atomic_write
     from pathlib import Path
 
     from evstab.controllers.two_dof import TwoDofDesign
@@ -444,15 +447,15 @@ def cmd_fmvss126(args) -> int:
 
 
 def cmd_score_swd(args) -> int:
-    from .fmvss126 import score_swd
-    from .logio import read_log_csv
+    from .verdicts.fmvss126 import score_swd
+    from .logs.drivelog import read_log_csv
 
     p = load_vehicle(args.vehicle)
     p.require("steering_ratio", model="FMVSS 126 scoring")
     log = read_log_csv(args.log)
     steer = log["steer_driver"] if "steer_driver" in log else log["steer"]
     if "ay" not in log:
-        from .logio import LogFormatError
+        from .logs.drivelog import LogFormatError
         raise LogFormatError(f"{args.log}: scoring needs the lateral acceleration column 'ay'")
     try:
         sc = score_swd(log["t"], steer * p.steering_ratio, log["yaw_rate"], log["ay"])
@@ -662,7 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_derive_nominal(args) -> int:
-    from .nominal import write_nominal
+    from .design.nominal import write_nominal
     if not is_multibody(args.plant):
         raise EvstabError(f"derive-nominal takes a commonroad-mb:N plant, not '{args.plant}'")
     p = write_nominal(args.plant, args.out)
@@ -673,7 +676,7 @@ def cmd_derive_nominal(args) -> int:
 
 
 def cmd_design(args) -> int:
-    from .design_job import run_design
+    from .design.design_job import run_design
     if args.workers is not None and args.workers < 1:
         raise EvstabError(f"--workers must be >= 1, got {args.workers}")
     if args.scheduler and args.executor != "dask":
@@ -696,7 +699,7 @@ def cmd_design(args) -> int:
 
 
 def cmd_cache(args) -> int:
-    from .compiled import _cache_dir, cache_files, clear_cache
+    from .kernels.compiled import _cache_dir, cache_files, clear_cache
     d = _cache_dir()
     if args.clear:
         n, size = clear_cache()
@@ -710,7 +713,7 @@ def cmd_cache(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from .report import write_report
+    from .design.report import write_report
     try:
         md, html = write_report(args.dir)
     except FileNotFoundError as exc:

@@ -9,7 +9,7 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import G, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import sine_with_dwell, step_steer
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def _state(d, **entries):
@@ -227,7 +227,7 @@ def test_gust_channel_rejects_a_crosswind():
     # steer is the driver's, and the moment holds about 580 N m at the end (the gust's 450 N m of yaw
     # moment plus its side force's) without chatter: no jump above 200 N m per period (measured 136, as the
     # gyro and the accelerometer come to agree at the gust's onset, where the agreement ramps in)
-    from evstab.toolkit import envelope as ev
+    from evstab.toolkit.verdicts import envelope as ev
     p = load_vehicle("compact-ev")
     case = next(c for c in ev.cases("two-track") if c.kind == "crosswind")
     man, road, _ = ev.run_setup(case, p)

@@ -10,7 +10,7 @@ from evstab.controllers.actuators import ActuatorLimits, actuator_law
 from evstab.controllers.two_dof import TwoDofDesign, allocate as allocate_commands, control_law, reference
 from evstab.plants import G, load_vehicle
 from evstab.plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
-from evstab.toolkit.stability import nominal_loop
+from evstab.toolkit.design.stability import nominal_loop
 
 
 @pytest.mark.parametrize("kb,kg", [(5.0, 5.0), (3.0, 8.0)])
@@ -159,7 +159,7 @@ def test_output_channel_margins_closed_form(kb, kg):
     # At the plant outputs the nominal return ratio is P C_fb = K (I - K)^-1 = diag(Kb, Kg) / s:
     # phase margin 90 deg at crossover K_j, no gain margin limit, balanced disk margin
     # 1 / max|S - 1/2| = 2 (|S - 1/2| = |s - K| / (2 |s + K|) = 1/2), |S| < 1 everywhere.
-    from evstab.toolkit.stability import channel_margins
+    from evstab.toolkit.design.stability import channel_margins
     p = load_vehicle("compact-ev")
     loop, _ = nominal_loop(TwoDofDesign(p.as_nominal(), k_beta=kb, k_gamma=kg), 20.0)
     m = {c.channel: c for c in channel_margins(loop)}

@@ -13,7 +13,7 @@ from evstab.plants import TRUTH, commonroad_mb as mb, default_disturbance, get_p
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.errors import ModelError
 from evstab.plants.maneuvers import step_steer
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 SETS = (1, 2, 3)
 
@@ -161,7 +161,7 @@ def test_iso_signs(set_id):
     u = model.command_map(cmd, x, p)
     assert u[mb.INPUTS.index("torque_rr")] > 0 > u[mb.INPUTS.index("torque_rl")]
     from evstab.plants import COMMANDS
-    from evstab.toolkit.compiled import compiled_plant
+    from evstab.toolkit.kernels.compiled import compiled_plant
     n = 1000
     C = np.repeat(cmd[:, None], n, axis=1)
     assert COMMANDS[1] == "yaw_moment"
@@ -192,7 +192,7 @@ def test_cli_step_steer_reaches_the_package_steady_state(set_id, tmp_path):
     at the package's own steady yaw rate for the same road-wheel angle within 2 % (measured 0.01 %:
     the servo, the smoothed camber sign and RK4 at 1 ms change nothing visible at 1 deg)."""
     from evstab.toolkit.cli import main
-    from evstab.toolkit.logio import read_log_csv
+    from evstab.toolkit.logs.drivelog import read_log_csv
     out = tmp_path / "run.csv"
     assert main(["simulate", "--plant", f"commonroad-mb:{set_id}", "--vehicle", f"commonroad-{set_id}",
                  "--maneuver", "step-steer", "--speed", "60", "--amplitude", "1.0", "--out", str(out)]) == 0
@@ -232,7 +232,7 @@ def test_stock_steering_rate_limits_the_servo():
     p = load_vehicle("commonroad-1")
     for spec, rate in (("commonroad-mb:1:0.4", 0.4), ("commonroad-mb:1", mb.STEER_RATE_DEFAULT)):
         model = get_plant(spec)
-        from evstab.toolkit.compiled import compiled_plant
+        from evstab.toolkit.kernels.compiled import compiled_plant
         from evstab.plants import COMMANDS
         n = 1000
         t = np.arange(n) * 1e-3

@@ -9,7 +9,7 @@ from evstab.plants.backend import NUMPY
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import ramp_steer, step_steer
 from evstab.plants.tires import combined_forces, magic_formula_normalised, peak_normalised_slip
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 DEG = np.pi / 180
 

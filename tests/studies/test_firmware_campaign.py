@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from evstab.studies import firmware_campaign as fc
-from evstab.toolkit.ecu_faults import ECU, OFFSETS
+from evstab.toolkit.loop.ecu_faults import ECU, OFFSETS
 
 
 def test_the_draws_reach_every_kind_and_input_within_their_bounds():

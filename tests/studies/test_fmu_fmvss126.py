@@ -4,14 +4,14 @@ the car within the standard where the car alone spins."""
 
 import pytest
 
-from evstab.toolkit.compiled import compiler
+from evstab.toolkit.kernels.compiled import compiler
 
 pytest.importorskip("fmpy", reason="FMPy (test extra) is not installed")
 if compiler() is None:
     pytest.skip("no C compiler on this machine (the FMU's binary is built at export)", allow_module_level=True)
 
 from evstab.studies import fmu_fmvss126  # noqa: E402
-from evstab.toolkit.fmvss126 import LATERAL_DISPLACEMENT_MIN, YAW_RATIO_1_0_MAX, YAW_RATIO_1_75_MAX  # noqa: E402
+from evstab.toolkit.verdicts.fmvss126 import LATERAL_DISPLACEMENT_MIN, YAW_RATIO_1_0_MAX, YAW_RATIO_1_75_MAX  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -172,7 +172,7 @@ def test_envelope_keeps_what_the_controller_does_well(tmp_path):
     # and 100 km/h on mu 0.3 (70.4 deg) it holds the car below 5 deg (measured 1.74 / 1.74 and 2.18 /
     # 2.61 deg); in smooth random steering below 4 m/s^2 and in a lift-off at 0.7 g it stays off (the
     # quiet rule: 0.25 deg, 300 N m; measured 0 deg, 0 N m: the driver passed through)
-    from evstab.toolkit import envelope as ev
+    from evstab.toolkit.verdicts import envelope as ev
     rows = _rows(_run("control_envelope", tmp_path) / "envelope.csv")
     by = {}
     for r in rows:

@@ -72,7 +72,7 @@ def test_the_bias_held_in_turns_on_the_gti_drives():
     sideslip error: 1.17, 0.70 and 2.16 deg RMS; held there, 0.55, 0.49 and 0.63 (docs/estimators.md)."""
     import dataclasses
 
-    from evstab.toolkit.emulate import Emulation, emulate
+    from evstab.toolkit.logs.emulate import Emulation, emulate
     from evstab.toolkit.estimation import design_filter, run_estimator
     from evstab.toolkit.estimation.spec import estimation_noise
     for drive in real_drives.drives(DATA)[:len(real_drives.GTI)]:

@@ -11,7 +11,7 @@ from evstab.studies.estimation_consistency import drives
 from evstab.toolkit.estimation import NoiseSettings, design_filter, run_estimator
 from evstab.toolkit.estimation.kalman import _adapt
 from evstab.toolkit.estimation.spec import estimation_noise
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def test_the_measurement_noise_is_the_sensor_models():

@@ -5,7 +5,7 @@ import pytest
 
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
-from evstab.toolkit.analysis import estimator_periodic_poles, speed_grid
+from evstab.toolkit.design.analysis import estimator_periodic_poles, speed_grid
 from evstab.toolkit.estimation import design_filter
 
 

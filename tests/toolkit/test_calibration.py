@@ -10,8 +10,8 @@ from evstab.plants.maneuvers import make_maneuver
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.cli import main
 from evstab.toolkit.estimation.calibration import load_calibration, write_calibration
-from evstab.toolkit.logio import read_log_csv, write_log_csv
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import read_log_csv, write_log_csv
+from evstab.toolkit.loop.simulator import simulate
 
 BIAS = 3e-3  # rad/s, the gyro's on both drives
 

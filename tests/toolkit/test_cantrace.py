@@ -1,4 +1,4 @@
-"""CAN traces to drive logs (toolkit.cantrace through toolkit.channels.read_mapped): a BLF and an ASC trace that
+"""CAN traces to drive logs (toolkit.logs.cantrace through toolkit.logs.channels.read_mapped): a BLF and an ASC trace that
 python-can writes, with a DBC the test writes (a multiplexed steering message among them), decode with cantools
 to the drive log the same samples give as a CSV table; `evstab estimate` runs on it; damaged inputs exit 2 with a
 message naming the file, message or signal, and write nothing; a late message is named."""
@@ -14,9 +14,9 @@ import pytest
 
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
-from evstab.toolkit.channels import read_mapped
+from evstab.toolkit.logs.channels import read_mapped
 from evstab.toolkit.cli import main
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 DBC = """VERSION ""
 

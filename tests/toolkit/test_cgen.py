@@ -12,7 +12,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from evstab.toolkit.compiled import compiler
+from evstab.toolkit.kernels.compiled import compiler
 from evstab.toolkit.firmware.cgen import Precision, emit_body
 from evstab.toolkit.firmware.csource import state_targets, state_writes
 

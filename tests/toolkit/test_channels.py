@@ -8,10 +8,10 @@ import scipy.io
 
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
-from evstab.toolkit.channels import load_channel_map, read_mapped, table_header
+from evstab.toolkit.logs.channels import load_channel_map, read_mapped, table_header
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import LogFormatError, read_log_csv
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import LogFormatError, read_log_csv
+from evstab.toolkit.loop.simulator import simulate
 
 RATIO = 15.0
 G = 9.80665
@@ -189,7 +189,7 @@ def test_bad_maps_are_named(tmp_path, reference, edit, needle, capsys):
 
 
 def test_matlab_file_needs_a_map_and_a_real_file(tmp_path, reference):
-    from evstab.toolkit.logio import read_log
+    from evstab.toolkit.logs.channels import read_log
     _, chans = reference
     scipy.io.savemat(tmp_path / "run.mat", chans)
     with pytest.raises(LogFormatError, match="a MATLAB log needs a channel map"):

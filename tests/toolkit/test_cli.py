@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import read_log_csv
+from evstab.toolkit.logs.drivelog import read_log_csv
 
 
 def test_vehicles_lists_bundled(capsys):

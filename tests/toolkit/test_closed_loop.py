@@ -1,4 +1,4 @@
-"""The loop is closed once (``toolkit.closed_loop.loop_step``): everyone runs that step, and its
+"""The loop is closed once (``toolkit.loop.closed_loop.loop_step``): everyone runs that step, and its
 compiled form equals its numpy form."""
 
 import dataclasses
@@ -10,10 +10,11 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, default_wind
 from evstab.plants.maneuvers import iso3888_1, step_steer
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import closed_loop, loop_program, stability
-from evstab.toolkit.closed_loop import LoopError
+from evstab.toolkit.loop import closed_loop, loop_program
+from evstab.toolkit.design import stability
+from evstab.toolkit.loop.closed_loop import LoopError
 from evstab.toolkit.estimation import design_filter
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(monkeypatch):
@@ -113,7 +114,7 @@ def test_sensors_sample_the_plant_at_the_start_of_the_period():
 def test_a_design_folder_ecu_runs_in_the_loop():
     # an EcuDesign (what `evstab export` prints) runs as the loop's ECU, with its own calibration
     from evstab.controllers.two_dof import TwoDofDesign
-    from evstab.toolkit.firmware.ecu import EcuDesign
+    from evstab.toolkit.ecu.step import EcuDesign
     p = load_vehicle("micro-ev")
     ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal(), k_beta=9.0))
     man = step_steer(25 / 3.6, np.radians(4.0), start=0.2, duration=1.0)

@@ -3,7 +3,7 @@ cached library is loaded silently the next time."""
 
 import casadi as ca
 
-from evstab.toolkit import compiled
+from evstab.toolkit.kernels import compiled
 
 
 def _fn():

@@ -10,9 +10,9 @@ import pytest
 
 from evstab.plants import TRUTH, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
-from evstab.toolkit import sweep as sw
-from evstab.toolkit.closed_loop import EXTRA
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.design import sweep as sw
+from evstab.toolkit.loop.closed_loop import EXTRA
+from evstab.toolkit.loop.simulator import simulate
 
 P = load_vehicle("compact-ev")
 CFG = sw.SweepConfig(P)
@@ -53,7 +53,7 @@ def test_sweep_row_equals_direct_single_case_runs(case):
 
 def test_rollout_cost_and_gradient_equal_the_numpy_simulator():
     # the tuning's cost and gradient: the forward-mode lane kernel (the default with a compiler)
-    from evstab.toolkit.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design.tuning import RolloutCost, phi_of
     rc = RolloutCost(CFG)
     assert rc.lanes is not None
     case = CASE_A
@@ -80,7 +80,7 @@ def test_forward_mode_lanes_equal_casadis_reverse_mode_on_every_run():
     # generated C) and the forward-mode lane kernel, four runs at once; the step's math differs by
     # the lane kernel's vector sin/atan (within 2 ulp) and the sums' order: 3.7e-14 (cost) and
     # 2.9e-14 (gradient) relative apart on these runs (measured) -> 1e-12
-    from evstab.toolkit.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design.tuning import RolloutCost, phi_of
     fast, ref = RolloutCost(CFG), RolloutCost(CFG, lanes=False)
     assert fast.lanes is not None and ref.lanes is None
     runs, rests = [], []
@@ -138,7 +138,7 @@ def test_dask_with_a_scheduler_and_two_worker_processes_gives_the_local_rows():
 
 def test_tuning_refuses_bounds_and_starts_it_cannot_use():
     from evstab.plants.errors import SettingsError
-    from evstab.toolkit.tuning import tune
+    from evstab.toolkit.design.tuning import tune
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(SettingsError, match="tuning bounds must be a finite number > 0"):
             tune(CFG, [CASE_A], bounds=bad)
@@ -149,7 +149,7 @@ def test_tuning_refuses_bounds_and_starts_it_cannot_use():
 
 def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
     from evstab.plants.sensors import SensorConfig, gps_fix_mask
-    from evstab.toolkit.closed_loop import latch_schedule
+    from evstab.toolkit.loop.closed_loop import latch_schedule
     t = np.arange(2000) * 1e-3
     fix = gps_fix_mask(t, SensorConfig(gps_rate=20.0))
     sched = latch_schedule(fix, 0.15, 1e-3)
@@ -160,7 +160,7 @@ def test_latch_schedule_refuses_more_fixes_in_flight_than_slots():
 
 def test_latch_schedule_captures_each_fix_lag_samples_early_in_its_slot():
     from evstab.plants.sensors import SensorConfig, gps_fix_mask
-    from evstab.toolkit.closed_loop import latch_schedule, latch_schedule_parts
+    from evstab.toolkit.loop.closed_loop import latch_schedule, latch_schedule_parts
     t = np.arange(2000) * 1e-3
     fix = gps_fix_mask(t, SensorConfig(gps_rate=20.0))
     ks = np.nonzero(fix)[0]
@@ -194,7 +194,7 @@ def design_dir(quick_design_dir):
 
 
 def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_unchanged(design_dir):
-    from evstab.toolkit.design_job import read_csv
+    from evstab.toolkit.logs.drivelog import read_rows_csv as read_csv
     doc = json.loads((design_dir / "design.json").read_text())
     rows = read_csv(design_dir / "sweep.csv")
     cases = sw.sweep_cases(quick=True)
@@ -223,7 +223,7 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
 
 
 def test_design_json_loads_into_designs_that_match_it(design_dir):
-    from evstab.toolkit.design_job import load_design
+    from evstab.toolkit.design.design_job import load_design
     d = load_design(design_dir)
     tuned = d.document["designs"]["tuned"]
     assert d.controller.k_beta == tuned["k_beta"] and d.controller.k_gamma == tuned["k_gamma"]
@@ -232,7 +232,7 @@ def test_design_json_loads_into_designs_that_match_it(design_dir):
 
 
 def test_load_design_names_the_file_and_field(tmp_path, design_dir):
-    from evstab.toolkit.design_job import load_design
+    from evstab.toolkit.design.design_job import load_design
     doc = json.loads((design_dir / "design.json").read_text())
     doc["format"] = "something-else"
     (tmp_path / "design.json").write_text(json.dumps(doc))
@@ -247,7 +247,7 @@ def test_load_design_names_the_file_and_field(tmp_path, design_dir):
 
 
 def test_report_numbers_are_the_design_json_numbers(design_dir):
-    from evstab.toolkit.report import fmt
+    from evstab.toolkit.design.report import fmt
     doc = json.loads((design_dir / "design.json").read_text())
     md = (design_dir / "report.md").read_text()
     html = (design_dir / "report.html").read_text()
@@ -279,7 +279,7 @@ def test_every_report_plot_names_its_axes_with_units(design_dir, monkeypatch):
     scales."""
     import re
 
-    from evstab.toolkit import report
+    from evstab.toolkit.design import report
     unit = re.compile(r"\[[^\]]+\]")
     seen = {}
     figure = report.Doc.figure
@@ -342,8 +342,8 @@ def test_the_responses_show_the_controller_acting(design_dir):
     mu 0.5, where the car alone slides past 10 deg and both designs hold it below 5 deg commanding a
     yaw moment beyond the quiet rule's 300 N m (measured on compact-ev: the car alone 89.7 deg, the
     paper design 1.36 deg with 833 N m); the report's table of peaks says so."""
-    from evstab.toolkit import report
-    from evstab.toolkit.design_job import LIMIT_RESPONSE_MU
+    from evstab.toolkit.design import report
+    from evstab.toolkit.design.design_job import LIMIT_RESPONSE_MU
     data = report.load_outputs(design_dir)
     peaks = {(r["mu"], r["maneuver"]): r for r in report.response_peaks(data["responses"])}
     limit = peaks[(LIMIT_RESPONSE_MU, "step-steer at the limit")]

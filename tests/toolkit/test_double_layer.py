@@ -7,7 +7,7 @@ from evstab.plants.maneuvers import steer_for_lateral_acceleration, step_steer
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.double_layer import layer2, roll_kf, roll_model_error, velocity_kf
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def test_layer2_under_30_percent_roll_model_error():
@@ -46,7 +46,7 @@ def test_double_layer_runs_through_estimate(tmp_path, capsys):
     """`evstab estimate --method double-layer` writes layer 2's vx, vy and roll next to layer 1's
     sideslip; a log without a roll gyro is refused, naming the column."""
     from evstab.toolkit.cli import main
-    from evstab.toolkit.logio import read_log_csv, write_log_csv
+    from evstab.toolkit.logs.drivelog import read_log_csv, write_log_csv
 
     p = load_vehicle("micro-ev")
     v = 25 / 3.6

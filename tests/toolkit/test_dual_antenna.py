@@ -11,8 +11,8 @@ from evstab.toolkit.cli import main
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.dual_antenna import bank_estimate
 from evstab.toolkit.estimation.identify import cornering_stiffness
-from evstab.toolkit.logio import write_log_csv
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import write_log_csv
+from evstab.toolkit.loop.simulator import simulate
 
 BANK = np.radians(-5.0)  # right side up: banked into the left turns
 
@@ -77,8 +77,8 @@ def test_runs_on_the_heading_alone_without_a_third_antenna(tmp_path, capsys):
     from evstab.plants.sensors import SensorConfig
     from evstab.toolkit.cli import main
     from evstab.toolkit.estimation import design_filter, run_estimator
-    from evstab.toolkit.logio import write_log_table
-    from evstab.toolkit.simulator import simulate
+    from evstab.toolkit.logs.drivelog import write_log_table
+    from evstab.toolkit.loop.simulator import simulate
     p = load_vehicle("compact-ev")
     r = simulate(p, "two-track", sine_lane_change(60 / 3.6, np.radians(3), start=3.0, duration=12.0),
                  sensors=SensorConfig(gyro_bias=0.003), seed=2)

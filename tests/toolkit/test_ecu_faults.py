@@ -1,4 +1,4 @@
-"""Faults injected into the ECU's inputs in the closed loop (toolkit.ecu_faults)."""
+"""Faults injected into the ECU's inputs in the closed loop (toolkit.loop.ecu_faults)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from evstab.plants import load_vehicle
 from evstab.plants.errors import SettingsError
 from evstab.plants.maneuvers import make_maneuver
 from evstab.studies.firmware_faults import no_harm, within_bound
-from evstab.toolkit.closed_loop import FAULT_PARAMS
-from evstab.toolkit.ecu_faults import OFF, EcuFault, fault_parameters
-from evstab.toolkit.firmware.ecu import INPUTS
-from evstab.toolkit.firmware.guard import FAULT_BITS
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.ecu_faults import FAULT_PARAMS
+from evstab.toolkit.loop.ecu_faults import OFF, EcuFault, fault_parameters
+from evstab.toolkit.ecu.step import INPUTS
+from evstab.toolkit.ecu.guard import FAULT_BITS
+from evstab.toolkit.loop.simulator import simulate
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import pytest
 
 from evstab.plants.errors import EvstabError
 from evstab.toolkit.cli import main
-from evstab.toolkit.emulate import PRODUCTION_GYRO, Emulation, emulate, metadata_path, read_metadata
-from evstab.toolkit.logio import LogFormatError, read_log_csv, write_log_csv
+from evstab.toolkit.logs.emulate import PRODUCTION_GYRO, Emulation, emulate, metadata_path, read_metadata
+from evstab.toolkit.logs.drivelog import LogFormatError, read_log_csv, write_log_csv
 
 
 def _circle(n=2001, dt=0.005, r=0.2, beta=0.03, v=20.0):

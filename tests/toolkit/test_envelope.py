@@ -9,7 +9,7 @@ import pytest
 from evstab.plants import G, load_vehicle
 from evstab.plants.maneuvers import iso3888_2, iso3888_2_lanes, slalom, step_steer
 from evstab.plants.paths import HumanDriver, Path
-from evstab.toolkit import envelope as ev
+from evstab.toolkit.verdicts import envelope as ev
 
 
 def m(beta=1.0, ay=5.0, cones=0, steer=0.0, nz=0.0, dev=float("nan")):

@@ -17,7 +17,7 @@ from evstab.toolkit.estimation.kalman import INPUTS, discretize, initial_state, 
 from evstab.toolkit.estimation.runner import compiled_filter, inputs_from_columns
 from evstab.toolkit.estimation.spec import continuous_model, estimation_noise, lateral_coefficients
 from evstab.plants.backend import NUMPY
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 DEG = np.pi / 180
 

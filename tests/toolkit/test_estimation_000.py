@@ -7,10 +7,10 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import dlc_000
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import timesync
+from evstab.toolkit.logs import timesync
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.two_stage import sideslip_at
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def test_subtractive_clustering_finds_two_blobs():

@@ -15,8 +15,8 @@ from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.diagnostics import autocorrelation, nis_consistency, whiteness
 from evstab.toolkit.estimation.identify import cornering_stiffness
 from evstab.toolkit.estimation.rate_table import PAPER_TABLE_I, discretise, model, predicted_errors
-from evstab.toolkit.logio import write_log_csv
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import write_log_csv
+from evstab.toolkit.loop.simulator import simulate
 
 SPEED, RADIUS = 16.0, 50.0
 

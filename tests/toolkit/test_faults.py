@@ -13,13 +13,13 @@ import pytest
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import Maneuver, steer_for_lateral_acceleration
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import faults as F
+from evstab.toolkit.logs import faults as F
 from evstab.toolkit.cli import main
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.monitor import FLAGS, MonitorSettings, gyro_stuck, speed_dropout
-from evstab.toolkit.logio import read_log_csv, write_log_csv
-from evstab.toolkit.nmea import write_nmea
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import read_log_csv, write_log_csv
+from evstab.toolkit.logs.nmea import write_nmea
+from evstab.toolkit.loop.simulator import simulate
 
 T0, T1 = 20.0, 30.0
 

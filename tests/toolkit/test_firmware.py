@@ -27,15 +27,15 @@ from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.maneuvers import make_maneuver
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.cli import main
-from evstab.toolkit.compiled import compiler
-from evstab.toolkit.design_job import basic_design_document, load_design
+from evstab.toolkit.kernels.compiled import compiler
+from evstab.toolkit.design.design_job import basic_design_document, load_design
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.estimation.spec import NoiseSettings, estimation_noise
 from evstab.toolkit.firmware import gains as gains_mod
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS, EcuDesign, ecu_step
 from evstab.toolkit.firmware.export import ecu_from_design, gain_set, render
 from evstab.toolkit.firmware.replay import ecu_inputs, ecu_program
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 CC = compiler()
 needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
@@ -118,7 +118,7 @@ def fault_log(closed_loop, tmp_path_factory):
     cols["ay"][k0:k1] *= ratio ** 2
     cols["speed"][k0:k1] = slow
     path = tmp_path_factory.mktemp("logs") / "faults.csv"
-    from evstab.toolkit.logio import write_log_csv
+    from evstab.toolkit.logs.drivelog import write_log_csv
     write_log_csv(path, cols)
     return cols, path
 
@@ -302,7 +302,7 @@ def test_a2l_parses_and_its_addresses_update_from_the_elf(design_dir, tmp_path):
     import re
     from evstab.toolkit.firmware.asam import MEASURED_STATE, measurements
     from evstab.toolkit.firmware.export import ecu_from_design
-    from evstab.toolkit.firmware.ecu import OUTPUTS
+    from evstab.toolkit.ecu.step import OUTPUTS
     nm = shutil.which("nm")
     if nm is None:
         pytest.skip("no nm (binutils)")
@@ -431,7 +431,7 @@ def test_ecu_signs_follow_iso_8855(ecu):
     assert dict(zip(OUTPUTS, y))["yaw_rate"] > 0
     # the driver steers left and the car does not turn (understeer): the law acts, turning left
     # (the steer applied over 10 ms: an instant 1 deg step would be 17 rad/s, which the input guard takes for
-    # a fault; toolkit.firmware.guard)
+    # a fault; toolkit.ecu.guard)
     u[g["yaw_rate"]], u[g["ay"]] = 0.0, 0.0
     for k in range(300):
         u[g["steer_cmd_driver"]] = np.radians(1.0) * min((k + 1) / 10, 1.0)
@@ -612,7 +612,7 @@ def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_d
 def test_simulate_with_a_design_folder_runs_its_ecu_in_the_loop(design_dir, ecu, tmp_path, capsys):
     """``evstab simulate --design DIR`` closes the loop with the folder's ECU: the same run as the
     simulator given that ECU, and not the default design's."""
-    from evstab.toolkit.logio import read_log
+    from evstab.toolkit.logs.channels import read_log
     out = tmp_path / "run.csv"
     args = ["simulate", "--vehicle", "compact-ev", "--maneuver", "step-steer", "--speed", "60", "--amplitude", "2",
             "--out", str(out)]

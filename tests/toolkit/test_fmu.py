@@ -14,13 +14,13 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import make_maneuver
 from evstab.toolkit.cli import main
-from evstab.toolkit.compiled import compiler
+from evstab.toolkit.kernels.compiled import compiler
 from evstab.toolkit.firmware.csource import write_inputs_csv
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import ecu_from_design
 from evstab.toolkit.firmware.fmu import VR_CALIBRATION, VR_OUTPUT
 from evstab.toolkit.firmware.replay import ecu_inputs
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 fmpy = pytest.importorskip("fmpy", reason="FMPy (test extra) is not installed")
 from fmpy import read_model_description  # noqa: E402

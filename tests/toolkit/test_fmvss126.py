@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from evstab.plants.maneuvers import sine_with_dwell
-from evstab.toolkit.fmvss126 import amplitudes, displacement_map, score_swd
+from evstab.toolkit.verdicts.fmvss126 import amplitudes, displacement_map, score_swd
 
 
 def synthetic(a_sw_deg=100.0, r_peak=0.5, sigma=0.5, t_peak_after_cos=0.3, jerk=5.0):
@@ -105,7 +105,7 @@ def test_uncontrolled_fails_and_the_default_two_dof_passes_with_the_estimator():
     # spins from 4 A on mu 1 (10 / 44 runs pass) and on mu 0.6 (4 / 44); the default (supervised)
     # 2-DOF controller passes both whole series, so it never fails a run the uncontrolled car passes
     from evstab.plants import load_vehicle
-    from evstab.toolkit.fmvss126 import find_a, run_series
+    from evstab.toolkit.verdicts.fmvss126 import find_a, run_series
     p = load_vehicle("compact-ev")
     a = find_a(p)
     assert a == pytest.approx(22.13, abs=0.01)  # regression line through 0.1-0.375 g, both directions

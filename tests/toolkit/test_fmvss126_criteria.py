@@ -1,5 +1,5 @@
 """FMVSS 126's numbers, each checked at its boundary on a hand-worked case, so that a wrong
-threshold, instant, filter or series constant in :mod:`toolkit.fmvss126` fails a test.
+threshold, instant, filter or series constant in :mod:`toolkit.verdicts.fmvss126` fails a test.
 
 The regulation's numbers are written here as the regulation states them (49 CFR 571.126, S5.2,
 S7.6, S7.9, S7.11), never read from the module under test."""
@@ -10,7 +10,7 @@ import scipy.signal
 
 from evstab.plants import G, load_vehicle
 from evstab.plants.maneuvers import sine_with_dwell
-from evstab.toolkit import fmvss126 as fm
+from evstab.toolkit.verdicts import fmvss126 as fm
 
 A = 20.0  # [deg hand-wheel] the series' A in the decisions below
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from evstab.plants import bundled_vehicles
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import read_log_csv
+from evstab.toolkit.logs.drivelog import read_log_csv
 
 N_LOGS, N_RANDOM_TABLES, N_VEHICLES = 600, 300, 300
 SETTINGS = dict(derandomize=True, deadline=None, database=None,

@@ -1,4 +1,4 @@
-"""Fuzzing `evstab convert` with damaged CAN traces and DBC files (toolkit.cantrace).
+"""Fuzzing `evstab convert` with damaged CAN traces and DBC files (toolkit.logs.cantrace).
 
 Each example is a mutation of a valid BLF trace (bytes flipped, dropped, truncated), of a valid ASC trace
 (tokens and lines replaced, dropped, duplicated) or of the valid DBC (tokens and lines). Whatever comes in,
@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import read_log_csv
+from evstab.toolkit.logs.drivelog import read_log_csv
 
 N_BLF, N_ASC, N_DBC = 150, 150, 150
 SETTINGS = dict(derandomize=True, deadline=None, database=None,

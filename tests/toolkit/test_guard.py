@@ -1,4 +1,4 @@
-"""The ECU's input guard (toolkit.firmware.guard): bad samples replaced and counted, persistent faults named
+"""The ECU's input guard (toolkit.ecu.guard): bad samples replaced and counted, persistent faults named
 in the fault word, the law's authority ramped out and back, the filter restarted; on clean inputs nothing
 changes."""
 
@@ -11,8 +11,8 @@ from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
 from evstab.plants.backend import NUMPY
 from evstab.toolkit.estimation import design_filter
-from evstab.toolkit.firmware import guard as gm
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
+from evstab.toolkit.ecu import guard as gm
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS, EcuDesign, ecu_step
 
 DT = 1e-3
 S = gm.GuardSettings()
@@ -211,7 +211,7 @@ def test_a_calibration_outside_its_limits_takes_the_authority():
         cal = list(good)
         cal[names.index("k_beta")] = wrong
         z = ecu.initial_state()
-        from evstab.toolkit.firmware.ecu import ecu_guard
+        from evstab.toolkit.ecu.step import ecu_guard
         words, ks = [], []
         for k in range(500):
             zg, _ = ecu_guard(ecu, z, u, NUMPY, cal if k < 300 else good)

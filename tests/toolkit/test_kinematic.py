@@ -12,7 +12,7 @@ from evstab.plants.sensors import SensorConfig
 from evstab.studies.estimation_mb import SLIDE_HAND_WHEEL_DEG, wrong
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.kalman import roll_compensation
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 DEG = np.pi / 180
 SENS = SensorConfig(gyro_bias=0.003, gyro_scale_error=0.01)
@@ -99,7 +99,7 @@ def test_a_delayed_fix_does_not_engage_the_kinematic_path():
     # threshold, so dakf is dakf without the path (measured 0.084 deg RMS both; with a lag of 1 ms instead
     # of the 0.1 s the path misfires, 0.38)
     from evstab.studies.control_mb_fmvss126 import wrong_nominal
-    from evstab.toolkit.sweep import SweepConfig, standard_maneuvers
+    from evstab.toolkit.design.sweep import SweepConfig, standard_maneuvers
     p = wrong_nominal(1)
     man = standard_maneuvers(SweepConfig(p, plant="commonroad-mb:1"), 80 / 3.6)[0]
     log = simulate(p, "commonroad-mb:1", man, sensors=SensorConfig(gps_latency=0.15), seed=1).log_columns()

@@ -1,4 +1,4 @@
-"""Lane kernels (``toolkit.lanes``): the vector math against glibc, the generated rollout against
+"""Lane kernels (``toolkit.kernels.lanes``): the vector math against glibc, the generated rollout against
 casadi's own evaluation of the same function, and the batched loop against the loop case by case."""
 
 import ctypes
@@ -12,9 +12,11 @@ from evstab.plants import load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.maneuvers import step_steer
 from evstab.plants.sensors import SensorConfig
-from evstab.toolkit import closed_loop as cl, lanes, sweep as sw
-from evstab.toolkit.compiled import compiler
-from evstab.toolkit.loop_program import LoopProgram
+from evstab.toolkit.loop import closed_loop as cl, loop_program
+from evstab.toolkit.kernels import lanes
+from evstab.toolkit.design import sweep as sw
+from evstab.toolkit.kernels.compiled import compiler
+from evstab.toolkit.loop.loop_program import LoopProgram
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
@@ -167,7 +169,7 @@ def test_rollout_kernel_reads_a_stepped_input_where_it_lies(tmp_path):
 
 def test_native_width_is_a_lane_width_the_kernels_know():
     assert lanes.native_width() in (lanes.WIDTH, lanes.WIDE)
-    assert cl.program(cl.loop_spec(load_vehicle("micro-ev"))).lanes.width == lanes.native_width()
+    assert loop_program.program(cl.loop_spec(load_vehicle("micro-ev"))).lanes.width == lanes.native_width()
 
 
 def test_rollout_kernel_division_by_a_case_constant_is_a_product_within_one_ulp(tmp_path):
@@ -200,7 +202,7 @@ def test_lane_kernel_loop_equals_casadis_generated_c():
     dist = Disturbances(wind=default_wind(p))
     sens = SensorConfig()
     spec = cl.loop_spec(p, sensors=sens)
-    fast, ref = cl.program(spec), cl.LoopProgram(cl.traced(spec), lanes=False)
+    fast, ref = loop_program.program(spec), loop_program.LoopProgram(cl.traced(spec), lanes=False)
     assert fast.backend == "lanes" and ref.backend == "c"
     U, z0, pv = fast.inputs(p, man, dist, sens, 0)
     th = fast.theta()
@@ -212,14 +214,14 @@ def test_lane_kernel_loop_equals_casadis_generated_c():
 
 
 def test_the_order_the_kernel_writes_a_step_in_changes_no_bit(tmp_path):
-    """The loop step written in casadi's instruction order and in :func:`toolkit.lanes._schedule`'s
+    """The loop step written in casadi's instruction order and in :func:`toolkit.kernels.lanes._schedule`'s
     (the kernels' order, for speed): the same operations on the same values, so the same bits over a
     3 s closed-loop run, on every output and the final state."""
     p = load_vehicle("micro-ev")
     man = step_steer(25 / 3.6, np.radians(5.0), start=0.2, duration=3.0)
     sens = SensorConfig()
     spec = cl.loop_spec(p, sensors=sens)
-    prog = cl.program(spec)
+    prog = loop_program.program(spec)
     step = cl._lane_step(cl.traced(spec))
     written = [lanes.rollout_source(step, "k", cl.LANE_ROLES, lanes.NARROW, schedule=s).split("for (long k = 0;")[1]
                for s in (True, False)]
@@ -238,11 +240,11 @@ def test_batched_and_per_case_rollouts_agree_on_every_output_of_a_50_case_sweep(
     """Lanes do not see each other: each case of a 50-case batch (blocks of lanes, the last
     partial at 4 or 8 lanes) equals the same case run alone, on every output, to 1e-12 (they are the same
     operations, so in fact bit for bit). A case run alone, and two run together, go through the narrow
-    kernel (:data:`toolkit.lanes.NARROW` lanes) where the machine's vectors are wider: a kernel of another
+    kernel (:data:`toolkit.kernels.lanes.NARROW` lanes) where the machine's vectors are wider: a kernel of another
     width, compiled separately, which computes the same."""
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
     cases = sw.sweep_cases(quick=False)[:50]
-    prog = cl.program(cfg.spec())
+    prog = loop_program.program(cfg.spec())
     assert prog.backend == "lanes"
     runs = [sw.case_inputs(cfg, c, prog)[1][0] for c in cases]  # the lane change of each case
     theta = np.array([prog.theta(gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error, mu_assumed=0.9)
@@ -269,7 +271,7 @@ def test_run_batch_into_given_arrays_returns_them_with_the_same_numbers():
     """``out=`` (the sweep's reused memory) changes where Y and E land, not what they hold; arrays
     holding garbage from an earlier block are overwritten everywhere (NaN-filled here)."""
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
-    prog = cl.program(cfg.spec())
+    prog = loop_program.program(cfg.spec())
     cases = sw.sweep_cases(quick=True)[:prog.lanes.width + 1]  # one full block of lanes and a partial one
     runs = [sw.case_inputs(cfg, c, prog)[1][1] for c in cases]  # the step steer of each case
     theta = np.array([prog.theta(gyro_bias=c.gyro_bias, gyro_scale_error=c.gyro_scale_error) for c in cases])
@@ -379,7 +381,7 @@ def test_tyre_shape_in_a_lane_kernel_is_the_table(tmp_path):
 def test_simulate_many_equals_simulate_run_by_run():
     """An FMVSS 126 series' runs stepped together equal each run simulated alone."""
     from evstab.plants.maneuvers import sine_with_dwell
-    from evstab.toolkit.simulator import simulate, simulate_many
+    from evstab.toolkit.loop.simulator import simulate, simulate_many
     p = load_vehicle("compact-ev")
     mans = [sine_with_dwell(80 / 3.6, s * np.radians(a) / p.steering_ratio) for a in (60.0, 180.0) for s in (1, -1)]
     dist = Disturbances(friction=Friction(mu=0.6))
@@ -405,7 +407,7 @@ def test_the_benchmarks_plant_kernel_retraces_the_loops_truth():
     man = step_steer(25 / 3.6, np.radians(5.0), start=0.2, duration=2.0)
     sens = SensorConfig()
     spec = cl.loop_spec(p, sensors=sens)
-    prog = cl.program(spec)
+    prog = loop_program.program(spec)
     U, z0, pv = prog.inputs(p, man, Disturbances(wind=default_wind(p)), sens, 0)
     Y, E = prog.run(U, z0, pv, prog.theta())
     kernel = _plant.plant_kernel(spec)

@@ -8,7 +8,7 @@ import pytest
 
 from evstab.controllers.two_dof import STEER_AUTHORITY, TwoDofDesign
 from evstab.plants import load_vehicle
-from evstab.toolkit import limits as lm
+from evstab.toolkit.design import limits as lm
 
 
 def _fm(runs, failed):
@@ -59,7 +59,7 @@ def test_the_step_case_asks_one_and_a_half_times_the_friction():
 
 
 def test_compare_needs_the_stated_margin():
-    from evstab.toolkit.design_job import BETTER_MARGIN, compare
+    from evstab.toolkit.design.design_job import BETTER_MARGIN, compare
     rows = [{"design": d, "case_id": 0, "cost": c, "stable": True} for d, c in (("paper", 10.0), ("tuned", 9.6))]
     s = compare(rows)
     assert BETTER_MARGIN == 0.05 and not s["tuned_strictly_better_worst_case"]  # 4 % better: not better
@@ -74,7 +74,7 @@ def test_steer_authority_comes_from_the_vehicle_file():
     d = TwoDofDesign(q)
     assert d.steer_authority == np.deg2rad(5.0) and d.steer_authority_rate == np.deg2rad(40.0)
     from evstab.toolkit.estimation import design_filter
-    from evstab.toolkit.firmware.ecu import EcuDesign
+    from evstab.toolkit.ecu.step import EcuDesign
     cal = {c.name: c.value for c in EcuDesign.from_designs(design_filter("dakf", q, control=True), d).calibration()}
     assert cal["steer_authority"] == np.deg2rad(5.0) and cal["steer_authority_rate"] == np.deg2rad(40.0)
     with pytest.raises(ValueError, match="steer_authority"):
@@ -87,7 +87,7 @@ def design_dir(quick_design_dir):
 
 
 def test_quick_design_passes_fmvss_and_is_no_worse_than_no_control(design_dir):
-    from evstab.toolkit.design_job import read_csv
+    from evstab.toolkit.logs.drivelog import read_rows_csv as read_csv
     doc = json.loads((design_dir / "design.json").read_text())
     rows = read_csv(design_dir / "limits.csv")
     lim = doc["sweep"]["limits"]
@@ -111,9 +111,9 @@ def test_quick_design_passes_fmvss_and_is_no_worse_than_no_control(design_dir):
 def test_limits_csv_reproduces_through_the_exported_ecu(design_dir):
     # the same FMVSS 126 series on mu 0.6, with the ECU as `evstab export` makes it from the folder
     # (schedule tables, calibration from design.json) instead of the design objects: same verdicts
-    from evstab.toolkit.design_job import read_csv
+    from evstab.toolkit.logs.drivelog import read_rows_csv as read_csv
     from evstab.toolkit.firmware.export import ecu_from_design
-    from evstab.toolkit.fmvss126 import run_series
+    from evstab.toolkit.verdicts.fmvss126 import run_series
     ecu, _ = ecu_from_design(design_dir)
     row = next(r for r in read_csv(design_dir / "limits.csv")
                if r["kind"] == "fmvss126" and r["design"] == "tuned" and r["mu"] == 0.6)
@@ -126,9 +126,9 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
     # the tuning holds FMVSS 126's lateral displacement through its forward-mode rollouts of the
     # loop: at the paper design the displacement must be the one run_series scores, and its
     # derivative by the gains what central differences give
-    from evstab.toolkit import sweep as sw
-    from evstab.toolkit.fmvss126 import run_series
-    from evstab.toolkit.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design import sweep as sw
+    from evstab.toolkit.verdicts.fmvss126 import run_series
+    from evstab.toolkit.design.tuning import RolloutCost, phi_of
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
     a_cache: dict = {}
     case = lm.LimitCase("fmvss126", 0.6)
@@ -163,7 +163,7 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
 def test_the_tightest_displacement_runs_are_held_and_misses_are_named():
     # the tuning holds per series and direction the runs with the least displacement under a design;
     # a run a design fails where no control meets it is named by the same label
-    from evstab.toolkit.tuning import DisplacementRun
+    from evstab.toolkit.design.tuning import DisplacementRun
     rows = [{"kind": "fmvss126", "case": "fmvss126 80 km/h mu 1",
              "_runs": [(100.0, "left", frozenset()), (100.0, "right", frozenset({"lateral_displacement"})),
                        (110.0, "left", frozenset()), (120.0, "left", frozenset())],

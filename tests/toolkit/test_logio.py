@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import read_log_csv
+from evstab.toolkit.logs.drivelog import read_log_csv
 
 H = "t,speed,steer,yaw_rate,gps_course\n"
 GOOD = "0,10,0.01,0.02,0.5\n0.001,10,0.01,0.02,\n0.002,10,0.01,0.02,\n"

@@ -7,7 +7,7 @@ import pytest
 
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
-from evstab.toolkit import stability as st
+from evstab.toolkit.design import stability as st
 
 OMEGA = np.logspace(-2, 3, 1500)
 
@@ -78,15 +78,15 @@ def test_loop_margins_equal_the_python_control_loop():
 def test_the_tunings_margin_floors():
     # rows: disk margin and -sensitivity peak on the design's own model. A start within the bounds is
     # held to the bounds (0.5, 2); a start beyond them to itself (else its first point is infeasible)
-    from evstab.toolkit.tuning import margin_floors
+    from evstab.toolkit.design.tuning import margin_floors
     assert margin_floors(np.array([2.0, -1.0])) == pytest.approx([0.5, -2.0], abs=1e-8)
     assert margin_floors(np.array([0.4, -2.5])) == pytest.approx([0.4, -2.5], abs=1e-8)
 
 
 def test_the_tunings_margin_values_are_the_loop_margins():
     # what IPOPT is given: the least disk margin and the largest peak over the speeds on the nominal model
-    from evstab.toolkit.sweep import DesignPoint, SweepConfig
-    from evstab.toolkit.tuning import MarginConstraint, margin_values, phi_of
+    from evstab.toolkit.design.sweep import DesignPoint, SweepConfig
+    from evstab.toolkit.design.tuning import MarginConstraint, margin_values, phi_of
     p = load_vehicle("compact-ev")
     cfg = SweepConfig(p)
     pt = DesignPoint("x", k_beta=1.2, k_gamma=6.3)

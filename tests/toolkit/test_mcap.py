@@ -1,4 +1,4 @@
-"""ROS 2 bags (MCAP) to drive logs (toolkit.mcaplog through toolkit.channels.read_mapped): a bag that
+"""ROS 2 bags (MCAP) to drive logs (toolkit.logs.mcaplog through toolkit.logs.channels.read_mapped): a bag that
 mcap-ros2-support writes with the standard message definitions (sensor_msgs/Imu, nav_msgs/Odometry,
 geometry_msgs/TwistStamped, sensor_msgs/NavSatFix, std_msgs/Float64 for the hand-wheel angle) converts to the
 drive log the same samples give as a CSV table, and to the simulated log it was drawn from; `evstab estimate`
@@ -18,12 +18,12 @@ from mcap_ros2.writer import Writer
 
 from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
-from evstab.toolkit.channels import horizontal_velocity, read_mapped
+from evstab.toolkit.logs.channels import horizontal_velocity, read_mapped
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import LogFormatError, read_log_csv
-from evstab.toolkit.mcaplog import split_channel
-from evstab.toolkit.nmea import yaw_sense
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import LogFormatError, read_log_csv
+from evstab.toolkit.logs.mcaplog import split_channel
+from evstab.toolkit.logs.nmea import yaw_sense
+from evstab.toolkit.loop.simulator import simulate
 
 # The standard ROS 2 message definitions (common_interfaces), with their dependencies, as `ros2 bag record`
 # stores them in an MCAP schema record.

@@ -11,9 +11,10 @@ from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import LogFormatError, read_log, read_log_csv
-from evstab.toolkit.mdf import load_channel_map
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.channels import read_log
+from evstab.toolkit.logs.drivelog import LogFormatError, read_log_csv
+from evstab.toolkit.logs.mdf import load_channel_map
+from evstab.toolkit.loop.simulator import simulate
 
 MAP = """
 [options]
@@ -65,7 +66,7 @@ def logs(tmp_path_factory):
     res = simulate(p, "two-track", man, sensors=SensorConfig(gps_outages=((2.0, 3.0),)), seed=5)
     cols = {k: v for k, v in res.log_columns().items() if not k.endswith("_true")}
     d = tmp_path_factory.mktemp("mdf")
-    from evstab.toolkit.logio import write_log_csv
+    from evstab.toolkit.logs.drivelog import write_log_csv
     write_log_csv(d / "log.csv", cols)
     t = cols["t"]
     fix = np.isfinite(cols["gps_course"])

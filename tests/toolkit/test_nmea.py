@@ -11,9 +11,9 @@ from evstab.plants import load_vehicle
 from evstab.plants.maneuvers import make_maneuver
 from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.cli import main
-from evstab.toolkit.logio import LogFormatError, read_log_csv, write_log_csv
-from evstab.toolkit.nmea import KNOT, NmeaFormatError, merge_onto_imu, read_nmea
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import LogFormatError, read_log_csv, write_log_csv
+from evstab.toolkit.logs.nmea import KNOT, NmeaFormatError, merge_onto_imu, read_nmea
+from evstab.toolkit.loop.simulator import simulate
 
 T0 = 12 * 3600.0  # the drive starts at 12:00:00 UTC
 

@@ -13,8 +13,8 @@ from evstab.toolkit.estimation import design_filter, kalman
 from evstab.toolkit.estimation.noise_fit import fit_noise, load_noise, nis_interval, write_noise
 from evstab.toolkit.estimation.runner import compiled_filter, initial_state, log_inputs
 from evstab.toolkit.estimation.spec import NoiseSettings
-from evstab.toolkit.logio import write_log_csv
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.logs.drivelog import write_log_csv
+from evstab.toolkit.loop.simulator import simulate
 
 # the log's sensors differ from the filter's defaults (gyro 0.004 rad/s, GPS velocity 0.056 m/s)
 GYRO, GPS = 0.006, 0.08
@@ -86,14 +86,14 @@ def test_the_cli_writes_a_noise_file_that_estimate_and_design_read(log, tmp_path
         seen.update(kw)
         raise SystemExit(0)
 
-    monkeypatch.setattr("evstab.toolkit.design_job.run_design", fake_run_design)
+    monkeypatch.setattr("evstab.toolkit.design.design_job.run_design", fake_run_design)
     with pytest.raises(SystemExit):
         cli.main(["design", "--vehicle", "compact-ev", "--out", str(tmp_path / "d"), "--noise", str(noise)])
     assert seen["noise"] == n
 
 
 def test_a_noise_file_sets_the_design_jobs_filter_and_start():
-    from evstab.toolkit import sweep as sw
+    from evstab.toolkit.design import sweep as sw
     n = NoiseSettings(gyro_std=0.005, q_d1=0.03)
     cfg = sw.SweepConfig(load_vehicle("compact-ev"), noise=n)
     assert cfg.paper.q_d1 == 0.03 and cfg.paper.k_beta == sw.PAPER.k_beta

@@ -8,7 +8,7 @@ import pytest
 from evstab.plants import commonroad_mb as mb, load_vehicle
 from evstab.plants.maneuvers import step_steer
 from evstab.toolkit.cli import main
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 @pytest.mark.parametrize("set_id", (1, 2, 3))

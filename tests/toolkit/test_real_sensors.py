@@ -13,7 +13,7 @@ from evstab.plants.maneuvers import make_maneuver
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.monitor import MonitorSettings, gyro_quantum, gyro_stuck
 from evstab.toolkit.estimation.spec import estimation_noise
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 @pytest.fixture(scope="module")

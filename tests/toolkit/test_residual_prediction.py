@@ -10,7 +10,7 @@ from evstab.plants.backend import NUMPY
 from evstab.plants.maneuvers import sine_lane_change
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.estimation.kalman import _prediction_weight, _residual_correlation, initial_state, layout
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def _running_rho(d, nu):

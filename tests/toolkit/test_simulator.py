@@ -7,8 +7,8 @@ from evstab.plants import COMMANDS, TRUTH, default_disturbance, get_plant, load_
 from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.maneuvers import dlc_000, iso3888_1, make_maneuver, step_steer
 from evstab.plants.sensors import SensorConfig, wrap_angle
-from evstab.toolkit.compiled import CompiledPlant
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.kernels.compiled import CompiledPlant
+from evstab.toolkit.loop.simulator import simulate
 
 DEG = np.pi / 180
 
@@ -136,7 +136,7 @@ def test_wind_pushes_left_and_yaws():
 
 
 def test_csv_round_trip(tmp_path, compact):
-    from evstab.toolkit.logio import read_log_csv
+    from evstab.toolkit.logs.drivelog import read_log_csv
     r = simulate(compact, "two-track", make_maneuver("step-steer", compact, 50 / 3.6),
                  sensors=SensorConfig(gps_outages=((2.0, 3.0),)))
     path = tmp_path / "log.csv"
@@ -167,7 +167,7 @@ def test_commands_recorded(compact):
 
 
 def test_reading_selected_columns(tmp_path, compact):
-    from evstab.toolkit.logio import REQUIRED, read_log_csv
+    from evstab.toolkit.logs.drivelog import REQUIRED, read_log_csv
     r = simulate(compact, "bicycle", make_maneuver("step-steer", compact, 50 / 3.6))
     path = tmp_path / "log.csv"
     r.write_csv(path)
@@ -185,7 +185,7 @@ def test_reading_selected_columns(tmp_path, compact):
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join(text) + "\n")
     assert len(read_log_csv(bad, columns=("ay",))) == len(full)
-    from evstab.toolkit.logio import LogFormatError
+    from evstab.toolkit.logs.drivelog import LogFormatError
     with pytest.raises(LogFormatError, match="row 6, column 'wheel_speed_fl'"):
         read_log_csv(bad)
 
@@ -197,8 +197,8 @@ def test_the_run_figure_shows_the_ecu_with_a_controller(tmp_path):
 
     from evstab.plants import load_vehicle
     from evstab.plants.maneuvers import step_steer
-    from evstab.toolkit.plotting import plot_run
-    from evstab.toolkit.simulator import simulate
+    from evstab.toolkit.loop.plotting import plot_run
+    from evstab.toolkit.loop.simulator import simulate
     p = load_vehicle("compact-ev")
     man = step_steer(60 / 3.6, np.radians(2.0), duration=2.0)
     panels = plot_run(simulate(p, "two-track", man, controller="two-dof"), tmp_path / "ctl.png", man)
@@ -215,7 +215,7 @@ def test_a_rollover_error_crosses_a_process_boundary():
     same error with its time: the exception pickles with both of its arguments."""
     import pickle
 
-    from evstab.toolkit.simulator import RolloverError
+    from evstab.toolkit.loop.simulator import RolloverError
     e = pickle.loads(pickle.dumps(RolloverError("commonroad-mb:1 rolled over at t = 2.345 s", 2.345)))
     assert isinstance(e, RolloverError) and e.t == 2.345 and str(e) == "commonroad-mb:1 rolled over at t = 2.345 s"
 

@@ -18,7 +18,7 @@ from evstab.controllers.schedule import SpeedSchedule
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import load_vehicle
 from evstab.toolkit.estimation import design_filter
-from evstab.toolkit import stability as st
+from evstab.toolkit.design import stability as st
 
 GOLDEN = {
     ("compact-ev", "dakf", 5.0, 5.0, False, 5.0): [

@@ -10,14 +10,14 @@ from evstab.plants import G, load_vehicle
 from evstab.plants.backend import NUMPY
 from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.maneuvers import sine_with_dwell, steer_for_lateral_acceleration
-from evstab.toolkit.compiled import with_fields
+from evstab.toolkit.kernels.compiled import with_fields
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.estimation.kalman import discretize_delta
 from evstab.toolkit.estimation.spec import continuous_model
 from evstab.toolkit.estimation.transition import exact_discretisation
-from evstab.toolkit.firmware.ecu import INPUTS, OUTPUTS, EcuDesign, ecu_step
+from evstab.toolkit.ecu.step import INPUTS, OUTPUTS, EcuDesign, ecu_step
 from evstab.toolkit.firmware.replay import ecu_inputs
-from evstab.toolkit.simulator import simulate
+from evstab.toolkit.loop.simulator import simulate
 
 
 def _ecu(name="compact-ev", method="dakf"):

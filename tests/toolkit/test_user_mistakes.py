@@ -40,7 +40,7 @@ def test_every_bundled_vehicle_meets_the_physics_checks():
 
 
 def test_an_impossible_vehicle_file_exits_2_and_writes_nothing(tmp_path, capsys):
-    from evstab.toolkit.nominal import to_toml
+    from evstab.toolkit.design.nominal import to_toml
     f = tmp_path / "v.toml"
     f.write_text(to_toml(P, "test").replace("roll_inertia = 800.0", "roll_inertia = 200.0"))
     assert "roll_inertia = 200.0" in f.read_text()
@@ -139,7 +139,7 @@ def test_export_of_a_missing_folder_is_a_sentence(tmp_path, capsys):
 _RACE = r"""
 import sys, time
 from pathlib import Path
-from evstab.toolkit.compiled import compile_source
+from evstab.toolkit.kernels.compiled import compile_source
 tmp = Path(sys.argv[1])
 (tmp / f"ready{sys.argv[2]}").touch()
 while not (tmp / "go").exists():
@@ -159,7 +159,7 @@ def test_two_processes_asking_for_one_library_build_it_once(tmp_path):
     import subprocess
     import sys
     import time
-    from evstab.toolkit.compiled import compiler
+    from evstab.toolkit.kernels.compiled import compiler
     if compiler() is None:
         pytest.skip("no C compiler")
     cache = tmp_path / "cache"
@@ -182,7 +182,7 @@ def test_two_processes_asking_for_one_library_build_it_once(tmp_path):
 def test_the_steer_check_at_its_bounds(k, refused):
     """A steady turn whose steer is k times the steady-state road-wheel angle (l / v + K v) r: a hand-wheel
     angle from k = 5 to 40 (steering ratios are 10-20); outside, no verdict."""
-    from evstab.toolkit.logio import DriveLog, LogFormatError, check_steer
+    from evstab.toolkit.logs.drivelog import DriveLog, LogFormatError, check_steer
     p = load_vehicle("compact-ev")
     n, v, r = 1000, 15.0, 0.1  # |a_y| = 1.5 m/s^2: inside the tyres' linear range
     noise = 1e-5 * np.random.default_rng(0).standard_normal(n)  # a steer sensor's (the fit needs a spread)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from evstab.plants.errors import DataError
 
-from ..logio import atomic_write, read_toml
+from ..logs.drivelog import atomic_write, read_toml
 
 BIAS_MAX = 0.1
 """[rad/s] A bias beyond this (5.7 deg/s) is not a yaw-rate sensor's: the file is refused."""

@@ -166,7 +166,7 @@ def write_noise(path, fit: NoiseFit, base: NoiseSettings, source: str) -> None:
     """The noise file: ``[meta]`` (where it comes from, the fit's figures) and ``[noise]`` (every
     :class:`NoiseSettings` field of ``fit.noise(base)`` that differs from the defaults, and the
     fitted ones)."""
-    from ..logio import atomic_write
+    from ..logs.drivelog import atomic_write
     noise = fit.noise(base)
     default = NoiseSettings()
     keys = [f.name for f in dataclasses.fields(NoiseSettings)

@@ -18,7 +18,7 @@ import numpy as np
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.errors import ModelError
 
-from ..compiled import cache_key, load_chunk_library, run_chunks, with_fields
+from ..kernels.compiled import cache_key, load_chunk_library, run_chunks, with_fields
 from . import dual_antenna, kalman, kkf, lob, two_stage
 from .spec import FilterDesign
 
@@ -206,7 +206,7 @@ def log_inputs(cols: dict, dt0: float = 1e-3, gyro_ok=None) -> np.ndarray:
 
 
 def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None, bias=None) -> Estimate:
-    """Run design ``d`` over a drive log (:class:`toolkit.logio.DriveLog` or a mapping of columns).
+    """Run design ``d`` over a drive log (:class:`toolkit.logs.drivelog.DriveLog` or a mapping of columns).
 
     ``*_true`` columns are never read. With ``monitor`` (True or a
     :class:`toolkit.estimation.monitor.MonitorSettings`) the log is screened for sensor

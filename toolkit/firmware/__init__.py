@@ -1,1 +1,2 @@
-"""Firmware: the ECU's step (estimator + controller) as evstab runs it, and its export (C99, JSON)."""
+"""Firmware: the ECU step (:mod:`toolkit.ecu`) of a design exported as C99 with its replay harness, the gain set
+(JSON), A2L and CDFX, the FMI 2.0 FMU, and its build for a microcontroller."""

@@ -48,7 +48,7 @@ def measurements(d) -> list[dict]:
     :data:`MEASURED_STATE` (``evstab_st`` plus the entry's byte offset); unit, description, range."""
     from evstab.controllers import supervisor as sup_mod
     from evstab.controllers import two_dof as ctl_mod
-    from .ecu import OUTPUTS
+    from ..ecu.step import OUTPUTS
     out = [{"name": f"out_{s.name}", "symbol": f"evstab_out.{s.name}", "offset": 0, "unit": s.unit,
             "description": s.doc} for s in OUTPUTS.signals]
     lay = d.layout
@@ -64,7 +64,7 @@ def measurements(d) -> list[dict]:
 
 def a2l(doc: dict, precision: str, d=None) -> str:
     """The A2L text for gain-set ``doc`` with calibration data stored as ``precision``; with the
-    :class:`~toolkit.firmware.ecu.EcuDesign` ``d``, also the MEASUREMENT objects of
+    :class:`~toolkit.ecu.step.EcuDesign` ``d``, also the MEASUREMENT objects of
     :func:`measurements` (addresses filled by the ECU project's update step, like the characteristics')."""
     dtype, size = _DATATYPE[precision]
     meas = measurements(d) if d is not None else []

@@ -1,7 +1,7 @@
 """The exported C99: ``evstab_firmware.h``, ``evstab_firmware.c`` and a replay harness.
 
 How the code is made (templates around casadi's arithmetic): the step's arithmetic
-is the casadi SX trace of :func:`toolkit.firmware.ecu.ecu_step` (the same graph the
+is the casadi SX trace of :func:`toolkit.ecu.step.ecu_step` (the same graph the
 replay compiles with casadi's own code generator), printed as straight-line C by
 :mod:`toolkit.firmware.cgen`; the surrounding file (structs, calibration data, the
 table lookup, ``evstab_init``/``evstab_step``) is a fixed template. Two variants of
@@ -20,9 +20,9 @@ import numpy as np
 
 from evstab.controllers.schedule import ROWS
 
-from ..compiled import shared
+from ..kernels.compiled import shared
 from .cgen import Precision, c_array, emit_body
-from .ecu import INPUTS, OUTPUTS, EcuDesign, traced_guard, traced_steps
+from ..ecu.step import INPUTS, OUTPUTS, EcuDesign, traced_guard, traced_steps
 
 PREFIX = "evstab"
 
@@ -231,7 +231,7 @@ static int {PREFIX}_segment(evstab_real v, int *seg, evstab_real *t_out)
     parts.append("}\n")
     moving = bool(d.filter.standstill_update)
     for fn in traced_steps(d, moving=moving):
-        fn = shared(fn)  # each repeated subexpression once: the same values (see toolkit.compiled.shared)
+        fn = shared(fn)  # each repeated subexpression once: the same values (see toolkit.kernels.compiled.shared)
         target, declare, finish = state_targets(fn, "z", "evstab_real")
         body = emit_body(fn, reads, [target, lambda k: f"out->{out_names[k]}"], p)
         parts.append(f"static void {PREFIX}_{fn.name()}(evstab_real *z, const evstab_input_t *in, "

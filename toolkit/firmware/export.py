@@ -10,11 +10,11 @@ from pathlib import Path
 
 from evstab.plants.errors import EvstabError
 
-from ..design_job import evstab_version, git_revision, load_design
-from ..logio import atomic_write
+from ..design.design_job import evstab_version, git_revision, load_design
+from ..logs.drivelog import atomic_write
 from . import asam, csource, gains
 from .cgen import PRECISIONS, Precision
-from .ecu import EcuDesign
+from ..ecu.step import EcuDesign
 
 FORMATS = ("c", "json", "a2l", "cdfx")
 FILES = {"c": ("evstab_firmware.h", "evstab_firmware.c", "evstab_replay.c"), "json": ("evstab_gains.json",),

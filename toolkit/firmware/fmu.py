@@ -7,11 +7,11 @@ with their start values and A2L limits). It holds:
 
 * ``modelDescription.xml``: every ECU input (``in.<name>``, value references from 0, in ``evstab_input_t``'s
   order) and output (``out.<name>``, from 100) as a Real with its unit and description from the signal layouts
-  (:data:`toolkit.firmware.ecu.INPUTS`, :data:`~toolkit.firmware.ecu.OUTPUTS`; the integer inputs,
+  (:data:`toolkit.ecu.step.INPUTS`, :data:`~toolkit.ecu.step.OUTPUTS`; the integer inputs,
   ``gps_valid``, ``gps_sats`` and the two limit flags, as Reals holding whole numbers), each calibration
   scalar (``cal.<name>``, from 1000) as a tunable parameter with its A2L limits, and the ECU period as the default step;
 * ``binaries/linux64/evstab_ecu.so``: built here with the host's C compiler (``$CC``, else ``gcc`` or ``cc``;
-  :func:`toolkit.compiled.compiler`), ``-O2``, without ``-ffast-math`` (the input guard tests for NaN);
+  :func:`toolkit.kernels.compiled.compiler`), ``-O2``, without ``-ffast-math`` (the input guard tests for NaN);
 * ``sources/``: the three C files and the table, so that other platforms build the same binary.
 
 One ``fmi2DoStep`` of ``h`` runs ``evstab_step`` ``h / period`` times with the inputs as last set (``h``
@@ -32,11 +32,11 @@ from xml.sax.saxutils import quoteattr
 
 from evstab.plants.errors import EvstabError
 
-from ..compiled import compiler
-from ..logio import atomic_write
+from ..kernels.compiled import compiler
+from ..logs.drivelog import atomic_write
 from . import csource
 from .cgen import Precision
-from .ecu import INPUTS, OUTPUTS, EcuDesign
+from ..ecu.step import INPUTS, OUTPUTS, EcuDesign
 
 MODEL_IDENTIFIER = "evstab_ecu"
 FMU_NAME = f"{MODEL_IDENTIFIER}.fmu"

@@ -7,7 +7,7 @@ and controller's settings, every calibration scalar (value, unit, limits, C symb
 the speed-scheduling grid with its interpolation rule, the torque split, the
 parameter-set hash, the evstab version and the design's provenance.
 
-:func:`load_gains` rebuilds the :class:`~toolkit.firmware.ecu.EcuDesign`;
+:func:`load_gains` rebuilds the :class:`~toolkit.ecu.step.EcuDesign`;
 ``gains_document(*load_gains(doc))`` is ``doc`` again, number for number (floats are
 written with Python's shortest round-trip repr).
 """
@@ -25,7 +25,7 @@ from evstab.plants.errors import EvstabError
 from evstab.plants.params import VehicleParams
 
 from ..estimation.spec import FilterDesign, NoiseSettings, design_filter
-from .ecu import INPUTS, OUTPUTS, EcuDesign
+from ..ecu.step import INPUTS, OUTPUTS, EcuDesign
 
 FORMAT = "evstab-gains/1"
 _CTL_SKIP = ("params", "schedule", "method")
@@ -106,7 +106,7 @@ def _num(v):
 
 
 def write_gains(path, doc: dict) -> None:
-    from ..logio import atomic_write
+    from ..logs.drivelog import atomic_write
     atomic_write(path, lambda fh: fh.write(dumps(doc)))
 
 

@@ -236,7 +236,7 @@ def main(argv=None) -> None:
 
     from evstab.studies._common import write_markdown
 
-    from ..design_job import default_design_document
+    from ..design.design_job import default_design_document
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", help="folder for the tables mcu_build.md and mcu_misra.md")
     ap.add_argument("--design", help="an 'evstab design' folder (default: the bundled compact-ev, dakf, 2-DOF)")

@@ -1,7 +1,7 @@
 """Replay a drive log through the ECU step (estimator and controller, open loop).
 
 ``evstab replay`` and ``evstab estimate --design`` run here. The step is the
-casadi trace of :func:`toolkit.firmware.ecu.ecu_step` (the graph the exported C is
+casadi trace of :func:`toolkit.ecu.step.ecu_step` (the graph the exported C is
 written from), rolled out by ``mapaccum`` and compiled by casadi's own code
 generator (cached), or run in casadi's virtual machine without a compiler; a
 Python loop over the numpy step is the reference (``backend="numpy"``). Like the
@@ -25,10 +25,10 @@ import numpy as np
 
 from evstab.plants.backend import NUMPY
 
-from ..compiled import cache_key, load_chunk_library, run_chunks
-from . import guard as guard_mod
-from .ecu import INPUTS, OUTPUTS, EcuDesign, ecu_core, ecu_guard, traced_guard, traced_steps
-from ..logio import LogFormatError
+from ..kernels.compiled import cache_key, load_chunk_library, run_chunks
+from ..ecu import guard as guard_mod
+from ..ecu.step import INPUTS, OUTPUTS, EcuDesign, ecu_core, ecu_guard, traced_guard, traced_steps
+from ..logs.drivelog import LogFormatError
 
 CHUNK = 2000
 LOG_COLUMNS = ("ay", "yaw_moment", "gps_speed", "gps_hdop", "gps_sats", "steer_driver", "steer_limited_last",

@@ -1,0 +1,293 @@
+"""The ECU's input guard: every input checked before the step uses it.
+
+Each period, before the filter and the law see anything, :func:`guard` checks the inputs of
+:data:`toolkit.ecu.step.INPUTS`:
+
+* ``dt``: used only if ``0 < dt <= dt_max``; otherwise the nominal period (a clock that jumps back
+  or stalls must not scale the filter's and the law's integration);
+* each physical signal (:data:`CHECKS`) against its physical range (a NaN or an infinity fails the
+  range, whatever the compiler's comparison of it) and, while it is not in fault, against a
+  plausible change since its last good value: ``|x - last| <= rate * dt + step`` (the yaw rate: ``rate *
+  (dt + held)``, ``held`` the time it has read one value, so a CAN signal moves on in one step after its
+  message interval). A sample that fails is replaced by the signal's last good value and counted
+  (``bad_samples``);
+* the yaw rate against the lateral acceleration: one that has read the same value for ``stuck_time`` while
+  ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
+  fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
+  chase the yaw rate it no longer reports);
+* a speed sample that fails reads as the rear wheels' mean speed times the wheel radius where both wheel
+  speeds are in range (the motors' yaw-moment torque speeds one wheel as much as it slows the other), else
+  as the last good value; a speed in fault then takes the law's authority only while the wheels cannot
+  stand in for it (it is named in the fault word all the same);
+* a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
+  is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
+  wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
+
+A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
+row, recovering after :data:`GPS_RECOVER_FIXES` good ones): its bit in ``fault_word``
+(:data:`FAULT_BITS`) is set, and while it lasts the signal is read for range only (a value that
+has moved on for good is taken back once it is in range; the yaw rate also for being stuck). It recovers after ``recover_time`` of
+good samples in a row (hysteresis). While a signal the law depends on (:data:`DEGRADING`) is in
+fault, the law's authority ``k`` ramps to 0 over ``ramp_time`` (steer command to the driver's,
+yaw moment to 0); at the recovery the filter and the law restart from their initial state (a restart at
+speed: the next course fix sets the heading), and ``restart_hold`` later the authority ramps back to 1
+over ``ramp_time``. On clean inputs nothing of this changes a value: ``k`` is exactly 1,
+every signal passes as it came.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evstab.plants.backend import NUMPY
+from evstab.plants.errors import ModelError
+from evstab.plants.signals import Layout, Signal
+
+
+@dataclass(frozen=True)
+class Check:
+    """The plausibility of one physical input: range ``[lower, upper]`` and a change per period of at most
+    ``rate * dt + step`` from its last good value (``rate`` None: no rate check)."""
+
+    name: str
+    lower: float
+    upper: float
+    rate: float | None
+    step: float
+    bit: int
+    degrading: bool
+
+
+CHECKS = (
+    # 120 m/s and 50 m/s^2 (5 g): no car's wheel-speed signal moves more than that
+    Check("speed", -20.0, 120.0, 50.0, 1.0, 1, True),
+    # road-wheel angle: 1 rad is beyond any steering rack's travel; 5 rad/s is ~4,300 deg/s at the hand
+    # wheel (ratio 15), three times what a driver or an EPS motor achieves
+    Check("steer", -1.0, 1.0, 5.0, 0.01, 2, True),
+    # a +-300 deg/s yaw-rate sensor; 30 rad/s^2 of yaw acceleration is beyond a spinning car's (~10), and
+    # the step allows a CAN signal's quantisation (1.28 deg/s) and gyro noise
+    Check("yaw_rate", -5.3, 5.3, 30.0, 0.1, 3, True),
+    # +-5 g; a vibrating body's accelerometer moves 4 m/s^2 per sample (5.7 m/s^2 between two): 20 m/s^2 from
+    # the last good value is 3.5 of those, and 500 m/s^3 of jerk more than a car's (a kerb strike's ~100)
+    Check("ay", -50.0, 50.0, 500.0, 20.0, 4, True),
+    Check("steer_cmd_driver", -1.0, 1.0, 5.0, 0.01, 6, True),
+    # the motors' torque difference can step from one period to the next
+    Check("yaw_moment_applied", -1e5, 1e5, None, 0.0, 7, True),
+)
+"""The physical inputs checked for range and rate, with their fault bit and whether a fault in them takes
+the law's authority."""
+DEGRADING = tuple(c.name for c in CHECKS if c.degrading) + ("dt", "calibration")
+FAULT_BITS = {"dt": 0, **{c.name: c.bit for c in CHECKS}, "gps": 5, "mu": 8, "wheel_speed_rl": 9,
+              "wheel_speed_rr": 10, "state": 11, "calibration": 12}
+"""Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted;
+``calibration``: a calibration scalar outside the limits the A2L declares)."""
+MU_NO_SENSOR = 10.0
+"""What an out-of-range ``mu`` reads as: no road-friction sensor (any value above the design's ``mu_max``)."""
+GPS_LATCH_FIXES = 3
+GPS_RECOVER_FIXES = 5
+"""The GPS is in fault after this many bad fixes in a row (its fixes come at 5-10 Hz, not every period) and
+recovers after ``GPS_RECOVER_FIXES`` good ones."""
+WHEEL_SPEED_MAX = 500.0
+"""[rad/s] Largest plausible wheel speed (about 600 km/h on a 0.33 m wheel)."""
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Timing of the input guard."""
+
+    dt_max: float = 0.1
+    """[s] Largest period used as given (a log replayed at 10 Hz still runs); above it, or at or below 0,
+    the nominal period."""
+    latch_time: float = 0.05
+    """[s] A signal failing its checks this long in a row is in fault."""
+    recover_time: float = 0.2
+    """[s] ... and recovers after this long of good samples in a row. At the limit the law's absence is what
+    harms: a 0.5 s NaN in the yaw rate, speed or driver's steer from the first steer of an ISO 3888-1 lane
+    change at 100 km/h on mu 0.5 (compact-ev, two-track, seeds 0 and 1) peaks at 2.27-2.52 deg of sideslip with
+    0.2 s, 3.75-8.5 deg with 1 s (the car alone 2.41)."""
+    ramp_time: float = 0.2
+    """[s] The law's authority ramps between 1 and 0 over this time."""
+    restart: bool = True
+    """Restart the filter and the law when the last fault recovers (False: they go on from where the held
+    inputs left them)."""
+    restart_hold: float = 0.0
+    """[s] After a restart the authority stays at 0 this long before it ramps back. 0: at once. Holding it
+    for the restarted filter to settle (its first course fix and the kinematic path's 2 s wait) spun the car
+    in that lane change (about 90 deg with 2.5 s): at the limit a law on a settling filter does less harm
+    than no law."""
+
+    stuck_time: float = 0.02
+    """[s] A yaw rate that has read the same value, to the bit, this long is held (a 1 kHz gyro's noise moves it
+    every period; a CAN signal at 100 Hz holds each value 10 ms, a quantised one in a steady turn for as long as
+    the turn lasts)."""
+    consistency_ay: float = 0.3
+    """[m/s^2] The yaw rate agrees with the lateral acceleration when ``|a_y - v r| <= consistency_ay +
+    consistency_rate v`` ..."""
+    consistency_rate: float = 0.02
+    """[rad/s] ... (``a_y - v r = v beta'``: a car that does not slide turns its velocity with its body;
+    the ``v`` term takes a CAN signal's 1.28 deg/s quantisation, 0.022 rad/s, and the sideslip rate of a lane
+    change). A held yaw rate that disagrees is stuck: it fails its check and reads as ``a_y / v``. A live
+    one may disagree (a slide: ``beta'`` is what the law is there for), a held one that agrees is a quantised
+    signal in a steady turn."""
+    consistency_speed: float = 5.0
+    """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
+
+    def __post_init__(self):
+        for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
+                  "consistency_ay", "consistency_rate", "consistency_speed"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
+                raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
+
+
+_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr", "calibration"]
+STATE = Layout("ECU guard state", [
+    *[Signal(f"last_{c.name}", "-", f"last good {c.name}") for c in CHECKS],
+    *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
+    *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
+    *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
+    Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
+    Signal("held_yaw_rate", "s", "time the yaw rate has read the same value"),
+    Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
+    Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
+    Signal("degraded", "-", "1 while an input the law depends on is in fault and nothing stands in for it"),
+    Signal("restart", "-", "1 on the period the filter and the law restart"),
+    Signal("hold", "s", "time left before the authority may ramp back after a restart"),
+    Signal("bad_samples", "-", "samples replaced since start"),
+    Signal("fault_word", "-", "bit per signal in fault (FAULT_BITS)"),
+])
+"""The guard's part of the ECU state."""
+
+
+def tree(items: list, op):
+    """``op`` over ``items`` pairwise (depth log2 n): the generated C's dependent chain stays short."""
+    items = list(items)
+    while len(items) > 1:
+        items = [op(items[i], items[i + 1]) if i + 1 < len(items) else items[i] for i in range(0, len(items), 2)]
+    return items[0]
+
+
+def initial_state() -> np.ndarray:
+    z = STATE.zeros()
+    z[STATE.index("authority")] = 1.0
+    return z
+
+
+def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY, calibration=()):
+    """One period of the guard: ``(z, inputs) -> (z_next, clean inputs)``, inputs a dict of
+    :data:`toolkit.ecu.step.INPUTS` (numbers or casadi symbols). ``calibration``: ``(value, lower, upper)``
+    of each calibration scalar (values numbers or symbols): one outside its limits (or not finite) is a fault
+    (``calibration``), which takes the law's authority until every value is back inside."""
+    st = STATE.as_dict(z)
+    nxt = dict(st)
+    clean = dict(g)
+    bad = {}
+    # the period first: everything below integrates with it
+    dt = g["dt"]
+    dt_ok = (dt > 0.0) * (dt <= s.dt_max)
+    dt_c = o.if_else(dt_ok, dt, dt_nominal)
+    clean["dt"] = dt_c
+    bad["dt"] = 1.0 - dt_ok
+    first = 1.0 - st["started"]
+    nxt["started"] = 1.0 + 0.0 * dt_c
+    # the yaw rate's hold: how long it has read one value (a CAN signal between its messages, or a stuck sensor)
+    r_raw = g["yaw_rate"]
+    same = (r_raw == st["raw_yaw_rate"]) * (1.0 - first)
+    held = (st["held_yaw_rate"] + dt_c) * same
+    nxt["raw_yaw_rate"] = o.if_else(o.fabs(r_raw) < 1e30, r_raw, 0.0)
+    nxt["held_yaw_rate"] = o.fmin(held, 2.0 * s.stuck_time)
+    oks = {}
+    for c in CHECKS:
+        x, last, fault = g[c.name], st[f"last_{c.name}"], st[f"fault_{c.name}"]
+        ok = (x >= c.lower) * (x <= c.upper)
+        if c.rate is not None:
+            # against the last good value; not while in fault (a signal that moved on for good comes back), nor
+            # on the first period (an ECU that starts at speed); the yaw rate's change over the time it held
+            # its last value (a CAN signal moves on in one step after its message interval)
+            span = dt_c + st["held_yaw_rate"] if c.name == "yaw_rate" else dt_c
+            near = o.fabs(x - last) <= c.rate * span + c.step
+            ok = ok * o.fmax(near, o.fmax(fault, first))
+        oks[c.name] = ok
+        clean[c.name] = o.if_else(ok, x, last)
+    # the yaw rate against the lateral acceleration: a held one that disagrees is stuck
+    v = o.fabs(clean["speed"])
+    disagree = (o.fabs(clean["ay"] - v * r_raw) > s.consistency_ay + s.consistency_rate * v) * \
+        (v >= s.consistency_speed)
+    stuck = (held >= s.stuck_time - 0.25 * dt_nominal) * disagree
+    oks["yaw_rate"] = oks["yaw_rate"] * (1.0 - stuck)
+    # a stuck yaw rate reads as the one the lateral acceleration gives (a_y / v: the car's velocity turns with its
+    # body while it does not slide; the last good value of a stuck sensor is the stuck value); any other sample
+    # not taken as the last good value
+    kinematic = clean["ay"] / o.fmax(v, s.consistency_speed)
+    clean["yaw_rate"] = o.if_else(oks["yaw_rate"], g["yaw_rate"], o.if_else(stuck, kinematic, st["last_yaw_rate"]))
+    # a speed sample not taken reads as the rear wheels' mean speed where both are in range (the motors' torque
+    # difference speeds one as much as it slows the other)
+    wl, wr = g["wheel_speed_rl"], g["wheel_speed_rr"]
+    wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
+    from_wheels = 0.5 * (o.if_else(wheels_ok, wl, 0.0) + o.if_else(wheels_ok, wr, 0.0)) * wheel_radius
+    clean["speed"] = o.if_else(oks["speed"], g["speed"], o.if_else(wheels_ok, from_wheels, st["last_speed"]))
+    for c in CHECKS:
+        nxt[f"last_{c.name}"] = clean[c.name]
+        bad[c.name] = 1.0 - oks[c.name]
+    # a course fix with a non-finite course, HDOP or satellite count, or HDOP <= 0, is not a fix
+    fix = g["gps_valid"] > 0.5
+    fix_ok = (o.fabs(g["gps_course"]) < 1e30) * (g["gps_hdop"] > 0.0) * (g["gps_hdop"] < 1e30) * \
+        (o.fabs(g["gps_sats"]) < 1e30)
+    clean["gps_valid"] = fix * fix_ok
+    clean["gps_course"] = o.if_else(fix * fix_ok, g["gps_course"], 0.0)
+    clean["gps_hdop"] = o.if_else(fix_ok, g["gps_hdop"], 1.0)
+    clean["gps_sats"] = o.if_else(fix_ok, g["gps_sats"], 0.0)
+    clean["gps_speed"] = o.if_else(o.fabs(g["gps_speed"]) < 1e30, g["gps_speed"], 0.0)
+    bad["gps"] = fix * (1.0 - fix_ok)
+    checks = [(v >= lo) * (v <= hi) for v, lo, hi in calibration]
+    bad["calibration"] = 1.0 - tree(checks, lambda a, b: a * b) if checks else 0.0 * dt_c
+    mu_ok = (g["mu"] >= 0.0) * (g["mu"] <= MU_NO_SENSOR)
+    clean["mu"] = o.if_else(mu_ok, g["mu"], MU_NO_SENSOR)
+    bad["mu"] = 1.0 - mu_ok
+    for side in ("rl", "rr"):
+        w = g[f"wheel_speed_{side}"]
+        w_ok = (w >= -WHEEL_SPEED_MAX) * (w <= WHEEL_SPEED_MAX)
+        clean[f"wheel_speed_{side}"] = o.if_else(w_ok, w, clean["speed"] / wheel_radius)
+        bad[f"wheel_speed_{side}"] = 1.0 - w_ok
+    words = []
+    for name in _SIGNALS:
+        b, fault = bad[name], st[f"fault_{name}"]
+        if name == "gps":  # counted in fixes: the samples between two fixes say nothing
+            bad_t = o.if_else(fix, (st["bad_gps"] + 1.0) * b, st["bad_gps"])
+            good_t = o.if_else(fix, (st["good_gps"] + 1.0) * (1.0 - b), st["good_gps"])
+            fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= GPS_RECOVER_FIXES - 0.5), bad_t >= GPS_LATCH_FIXES - 0.5)
+            nxt["bad_gps"] = o.fmin(bad_t, 2.0 * GPS_LATCH_FIXES)
+            nxt["good_gps"] = o.fmin(good_t, 2.0 * GPS_RECOVER_FIXES)
+        else:
+            bad_t = (st[f"bad_{name}"] + dt_c) * b
+            good_t = (st[f"good_{name}"] + dt_c) * (1.0 - b)
+            # in fault from latch_time of failures in a row, until recover_time of good samples in a row; a
+            # quarter period short of each, so that float32 and float64 sums of the periods decide alike
+            margin = 0.25 * dt_nominal
+            fault_n = o.if_else(fault > 0.5, 1.0 - (good_t >= s.recover_time - margin), bad_t >= s.latch_time - margin)
+            # the timers saturate: a drive of any length keeps them exact where they are compared
+            nxt[f"bad_{name}"] = o.fmin(bad_t, 2.0 * s.latch_time)
+            nxt[f"good_{name}"] = o.fmin(good_t, 2.0 * s.recover_time)
+        nxt[f"fault_{name}"] = fault_n
+        words.append(fault_n * float(2 ** FAULT_BITS[name]))
+    word = tree(words, lambda a, b: a + b)
+    # a speed in fault takes the authority only where the wheels cannot stand in for it
+    # (both wheel speeds in range now and neither in fault: the same hysteresis as the speed's own)
+    stand_in = wheels_ok * (1.0 - nxt["fault_wheel_speed_rl"]) * (1.0 - nxt["fault_wheel_speed_rr"])
+    spare = {"speed": 1.0 - stand_in}
+    was = st["degraded"]
+    now = tree([nxt[f"fault_{name}"] * spare.get(name, 1.0) for name in DEGRADING], o.fmax)
+    nxt["degraded"] = now
+    step = dt_c / s.ramp_time
+    restart = was * (1.0 - now) * float(s.restart)
+    # the first period after evstab_init is a start too: an ECU reset at speed restarts as a recovery does
+    nxt["restart"] = o.fmax(restart, first)
+    nxt["hold"] = o.if_else(restart > 0.5, s.restart_hold, o.fmax(st["hold"] - dt_c, 0.0))
+    down = o.fmax(now, nxt["hold"] > 0.25 * dt_nominal)  # the quarter period: float32 and float64 alike
+    nxt["authority"] = o.fmin(o.fmax(st["authority"] + o.if_else(down > 0.5, -step, step), 0.0), 1.0)
+    n_bad = tree([bad[name] for name in _SIGNALS], lambda a, b: a + b)
+    nxt["bad_samples"] = o.fmin(st["bad_samples"] + (n_bad > 0.5), 1e7)
+    nxt["fault_word"] = word
+    return STATE.pack(nxt, o), clean
