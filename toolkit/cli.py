@@ -690,7 +690,8 @@ def cmd_design(args) -> int:
     doc = run_design(args.vehicle, args.out, quick=args.quick, executor=args.executor, scheduler=args.scheduler,
                      workers=args.workers, command=command, progress=not args.no_progress, plant=args.plant,
                      noise=noise, kinematic=not args.no_kinematic_path)
-    s, d = doc["sweep"], doc["designs"]["tuned"]
+    from .design.record import design_points
+    s, d = doc["sweep"], design_points(doc)["tuned"]
     print(f"{doc['vehicle']['name']}: tuned K_beta {d['k_beta']:.4g}, K_gamma {d['k_gamma']:.4g} rad/s; "
           f"worst-case cost over {s['cases']} cases: paper {s['paper']['worst_cost']:.4g}, tuned "
           f"{s['tuned']['worst_cost']:.4g}; stable cases: paper {s['paper']['stable_cases']}, tuned "

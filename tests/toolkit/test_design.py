@@ -11,6 +11,7 @@ import pytest
 from evstab.plants import TRUTH, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.toolkit.design import sweep as sw
+from evstab.toolkit.design.record import design_points
 from evstab.toolkit.loop.closed_loop import EXTRA
 from evstab.toolkit.loop.simulator import simulate
 
@@ -207,7 +208,8 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
     assert doc["sweep"]["paper"]["worst_cost"] == paper_worst
     assert doc["sweep"]["tuned"]["worst_cost"] == tuned_worst
     if doc["sweep"]["tuned_is_paper"]:  # no candidate met the limit constraint: said so, and unchanged
-        assert tuned_worst == paper_worst and doc["designs"]["tuned"] == doc["designs"]["paper"]
+        points = design_points(doc)
+        assert tuned_worst == paper_worst and points["tuned"] == points["paper"]
     else:  # better by the stated margin
         assert tuned_worst < (1.0 - doc["sweep"]["better_margin"]) * paper_worst
     assert all(by[(c.case_id, "tuned")]["stable"] for c in cases if by[(c.case_id, "paper")]["stable"])
@@ -225,9 +227,14 @@ def test_design_outputs_and_the_tuned_design_beats_the_paper_or_says_it_is_uncha
 def test_design_json_loads_into_designs_that_match_it(design_dir):
     from evstab.toolkit.design.design_job import load_design
     d = load_design(design_dir)
-    tuned = d.document["designs"]["tuned"]
-    assert d.controller.k_beta == tuned["k_beta"] and d.controller.k_gamma == tuned["k_gamma"]
-    assert d.filter.noise.q_d1 == tuned["q_d1"] and d.filter.method == "dakf"
+    # the loaded controller is the design the tuning's limit selection accepted (written by another step)
+    accepted = [r for r in d.document["tuning"]["limit_selection"] if r["accepted"]]
+    if accepted:
+        assert (d.controller.k_beta, d.controller.k_gamma) == (accepted[0]["k_beta"], accepted[0]["k_gamma"])
+    assert d.point.k_beta == d.controller.k_beta and d.point.q_d1 == d.filter.noise.q_d1
+    assert d.filter.method == "dakf"
+    # the tuned gains and noise are in the file once, in the controller and the estimator
+    assert "designs" not in d.document and set(d.document["paper_design"]) == set(sw.DesignPoint.TUNED)
     assert d.params.digest() == d.document["vehicle"]["params_digest"]
 
 
@@ -257,8 +264,9 @@ def test_report_numbers_are_the_design_json_numbers(design_dir):
         assert f"paper design cost {fmt(s['paper']['worst_cost'])}" in text
         assert f"tuned design cost {fmt(s['tuned']['worst_cost'])}" in text
         assert f"paper {fmt(s['paper']['stable_cases'])} of {fmt(s['cases'])}" in text
-        for k, v in doc["designs"]["tuned"].items():
-            assert f"| {k} | {fmt(doc['designs']['paper'][k])} | {fmt(v)} |" in md
+        points = design_points(doc)
+        for k, v in points["tuned"].items():
+            assert f"| {k} | {fmt(points['paper'][k])} | {fmt(v)} |" in md
         assert doc["vehicle"]["params_digest"] in text and esc(doc["provenance"]["command"]) in text
         # the verdict's margins are design.json's (the tuned design's worst on its own model and across
         # the model errors), and the tuning held the design to the constraint

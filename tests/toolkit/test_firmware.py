@@ -29,6 +29,7 @@ from evstab.plants.sensors import SensorConfig
 from evstab.toolkit.cli import main
 from evstab.toolkit.kernels.compiled import compiler
 from evstab.toolkit.design.design_job import basic_design_document, load_design
+from evstab.toolkit.design.record import design_points
 from evstab.toolkit.estimation import design_filter
 from evstab.toolkit.estimation.spec import NoiseSettings, estimation_noise
 from evstab.toolkit.firmware import gains as gains_mod
@@ -239,7 +240,21 @@ def test_gain_set_round_trips_exactly(design_dir, ecu):
     assert gains_mod.dumps(gains_mod.gains_document(d, prov, gps)) == text
     assert doc["signals"]["inputs"][INPUTS.index("gps_course")]["unit"] == "rad"
     assert doc["controller"]["beta_error_max"] is None  # unlimited, written as null (JSON has no inf)
-    assert doc["controller"]["k_beta"] == 6.5 and doc["estimator"]["noise"]["q_d2"] == 0.03
+    cal = {c["name"]: c["value"] for c in doc["calibration"]}
+    assert cal["k_beta"] == 6.5 and cal["q_d2"] == 0.03 and cal["torque_max"] == ecu.torque_max
+    # each calibration scalar once in the file: the settings sections leave them to the calibration list
+    assert "k_beta" not in doc["controller"] and "q_d2" not in doc["estimator"]["noise"]
+    assert text.count('"k_beta"') == 1 and text.count('"k_gamma"') == 1
+
+
+def test_a_gain_set_of_format_1_still_loads(design_dir, ecu):
+    """Format 1 wrote each calibration scalar twice, in its section and in the calibration list; the list is
+    authoritative, so a section's stale copy changes nothing."""
+    doc = gain_set(design_dir)
+    doc["format"] = "evstab-gains/1"
+    doc["controller"]["k_beta"] = 1.0  # a stale copy: the calibration list's 6.5 wins
+    doc["torque_split"]["torque_max_nm"] = 1.0
+    assert gains_mod.load_gains(doc)[0] == ecu
 
 
 def test_an_edited_calibration_value_reaches_the_c(design_dir):
@@ -597,7 +612,7 @@ def test_a_real_design_folder_exports_and_its_c_equals_the_replay(quick_design_d
     assert names == {"evstab_firmware.h", "evstab_firmware.c", "evstab_replay.c", "evstab_gains.json",
                      "evstab_firmware.a2l", "evstab_firmware.cdfx"}
     doc = json.loads((out / "evstab_gains.json").read_text())
-    tuned = json.loads((quick_design_dir / "design.json").read_text())["designs"]["tuned"]
+    tuned = design_points(json.loads((quick_design_dir / "design.json").read_text()))["tuned"]
     cal = {c["name"]: c["value"] for c in doc["calibration"]}
     assert cal["k_beta"] == tuned["k_beta"] and cal["q_d2"] == tuned["q_d2"]  # the tuned design travels
     _run([CC, *STRICT, "-O2", "-o", str(out / "replay"), str(out / "evstab_firmware.c"),

@@ -104,8 +104,8 @@ def test_quick_design_passes_fmvss_and_is_no_worse_than_no_control(design_dir):
         assert not accepted
     else:
         assert accepted == sel[-1:]  # the selection stops at the first accepted candidate
-        assert accepted[0]["k_beta"] == doc["designs"]["tuned"]["k_beta"]
-        assert accepted[0]["k_gamma"] == doc["designs"]["tuned"]["k_gamma"]
+        assert accepted[0]["k_beta"] == doc["controller"]["k_beta"]
+        assert accepted[0]["k_gamma"] == doc["controller"]["k_gamma"]
 
 
 def test_limits_csv_reproduces_through_the_exported_ecu(design_dir):

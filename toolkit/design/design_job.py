@@ -47,7 +47,7 @@ from ..estimation.spec import FilterDesign, NoiseSettings
 from ..logs.drivelog import atomic_write, write_rows_csv
 from .stability import DISK_MARGIN_MIN, SENSITIVITY_PEAK_MAX, estimator_loop, nominal_loop
 
-FORMAT = "evstab-design/1"
+from .record import FORMAT, READS, design_points
 
 
 def evstab_version() -> str:
@@ -92,7 +92,7 @@ def design_document(cfg: sw.SweepConfig, tuned: sw.DesignPoint, paper: sw.Design
     doc = basic_design_document(cfg.nominal, cfg.filter_design(tuned), tuned.controller(cfg.base_design()), gps,
                                 command)
     doc["plant_model"] = cfg.plant
-    doc["designs"] = {d.name: {k: float(getattr(d, k)) for k in sw.DesignPoint.TUNED} for d in (paper, tuned)}
+    doc["paper_design"] = {k: float(getattr(paper, k)) for k in sw.DesignPoint.TUNED}
     doc["tuning"] = tuning
     doc["sweep"] = summary
     doc["provenance"] = doc.pop("provenance")  # last, as before
@@ -147,7 +147,8 @@ class LoadedDesign:
 
     @property
     def point(self) -> sw.DesignPoint:
-        return sw.DesignPoint("tuned", **self.document["designs"]["tuned"])
+        return sw.DesignPoint("tuned", **design_points(self.document)["tuned"])
+
 
 
 def load_design(path) -> LoadedDesign:
@@ -181,7 +182,7 @@ def load_design(path) -> LoadedDesign:
         raise DesignError(f"{f}: cannot read it ({e.strerror})") from None
     except json.JSONDecodeError as e:
         raise DesignError(f"{f}: not JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
-    if doc.get("format") != FORMAT:
+    if doc.get("format") not in READS:
         raise DesignError(f"{f}: field 'format' is {doc.get('format')!r}, expected {FORMAT!r}")
     try:
         params = VP(**doc["vehicle"]["nominal_params"])

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..logs.drivelog import atomic_write, read_rows_csv
+from .record import design_points
 
 NEEDED = ("design.json", "sweep.csv", "analysis.csv", "poles.csv", "responses.csv", "limits.csv")
 
@@ -241,7 +242,8 @@ def build(data: dict) -> Doc:
 
     doc, sweep = data["design"], data["sweep"]
     s = doc["sweep"]
-    designs = list(doc["designs"])
+    points = design_points(doc)
+    designs = list(points)
     veh = doc["vehicle"]
     D = Doc()
     D.h(1, f"evstab design report: {veh['name']}")
@@ -306,7 +308,7 @@ def build(data: dict) -> Doc:
     D.p(f"Parameter-set hash {veh['params_digest']}; plant model {doc['plant_model']}; control period "
         f"{fmt(doc['control_period_s'])} s; GPS {fmt(doc['gps']['rate_hz'])} Hz, latency "
         f"{fmt(doc['gps']['latency_s'])} s (designed).")
-    D.table([{"quantity": k, **{n: doc["designs"][n][k] for n in designs}} for k in doc["designs"]["paper"]])
+    D.table([{"quantity": k, **{n: points[n][k] for n in designs}} for k in points["paper"]])
     D.p("K_beta, K_gamma: model-following poles [rad/s]; q_*: process-noise intensities of the DAKF. "
         "The paper design is seed 003's K_beta = K_gamma = 5 rad/s with evstab's hand-tuned dakf noise.")
     t = doc["tuning"]
@@ -500,7 +502,7 @@ def response_peak_headers(resp: list[dict]) -> list[str]:
 def summary_table(doc: dict) -> str:
     """``summary.md``: the paper design against the tuned design in one Markdown table (gains, noise
     intensities, worst and median cost, stable cases, FMVSS 126, the limit runs), from ``design.json``."""
-    s, des = doc["sweep"], doc["designs"]
+    s, des = doc["sweep"], design_points(doc)
 
     def g(x):
         return f"{x:.4g}"

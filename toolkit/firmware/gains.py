@@ -1,9 +1,10 @@
 """The self-describing JSON gain set (``evstab_gains.json``) and its loader.
 
-Format ``evstab-gains/1``: everything the firmware's step needs and everything a
+Format ``evstab-gains/2``: everything the firmware's step needs and everything a
 reader needs to use it without evstab: control period, GPS model, the signal order
 with units and ISO 8855 signs, the state layout and initial value, the estimator's
-and controller's settings, every calibration scalar (value, unit, limits, C symbol),
+and controller's settings, every calibration scalar (value, unit, limits, C symbol;
+written there alone, not again in the settings: K_beta is in the file once),
 the speed-scheduling grid with its interpolation rule, the torque split, the
 parameter-set hash, the evstab version and the design's provenance.
 
@@ -27,7 +28,10 @@ from evstab.plants.params import VehicleParams
 from ..estimation.spec import FilterDesign, NoiseSettings, design_filter
 from ..ecu.step import INPUTS, OUTPUTS, EcuDesign
 
-FORMAT = "evstab-gains/1"
+FORMAT = "evstab-gains/2"
+READS = ("evstab-gains/1", FORMAT)
+"""The formats :func:`load_gains` reads: ``/1`` also wrote each calibration scalar in its section (controller,
+estimator noise, torque split), which the calibration list overrides."""
 _CTL_SKIP = ("params", "schedule", "method")
 
 
@@ -43,6 +47,8 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
     names = symbol_names(d)
     fmin, cmin = d.min_speeds
     lay = d.layout
+    cal = d.calibration()
+    calibrated = {c.name for c in cal}  # written once, in the calibration list
     return {
         "format": FORMAT,
         "description": "evstab stability-control ECU step: multi-rate Kalman filter (gyro every period, GPS course "
@@ -76,12 +82,14 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
             "gating": f.gating, "hdop_noise": f.hdop_noise, "standstill_update": f.standstill_update,
             "residual_prediction": f.residual_prediction, "kinematic": bool(f.kinematic), "latency_s": f.latency,
             "antenna_x_m": f.antenna_x,
-            "noise": {k.name: float(getattr(f.noise, k.name)) for k in dataclasses.fields(f.noise)},
+            "noise": {k.name: float(getattr(f.noise, k.name)) for k in dataclasses.fields(f.noise)
+                      if k.name not in calibrated},
         },
-        "controller": {k.name: _num(getattr(c, k.name)) for k in dataclasses.fields(c) if k.name not in _CTL_SKIP},
-        "calibration": [{"name": cal.name, "symbol": names[cal.name], "value": cal.value, "unit": cal.unit,
-                         "lower": cal.lower, "upper": cal.upper, "owner": cal.owner, "description": cal.description}
-                        for cal in d.calibration()],
+        "controller": {k.name: _num(getattr(c, k.name)) for k in dataclasses.fields(c)
+                       if k.name not in _CTL_SKIP and k.name not in calibrated},
+        "calibration": [{"name": x.name, "symbol": names[x.name], "value": x.value, "unit": x.unit,
+                         "lower": x.lower, "upper": x.upper, "owner": x.owner, "description": x.description}
+                        for x in cal],
         "schedule": {
             "axis": {"name": "inv_speed", "symbol": names["inv_speed"], "unit": "s/m",
                      "values": list(d.schedule.inv_speed)},
@@ -92,8 +100,8 @@ def gains_document(d: EcuDesign, provenance: dict, gps: dict) -> dict:
             "evaluated_at": {"filter": f"max(speed, {fmin!r})", "controller": f"max(speed, {cmin!r})"},
             "max_relative_interpolation_error": d.schedule.max_error(p),
         },
-        "torque_split": {"torque_max_nm": d.torque_max, "track_rear_m": d.track_rear,
-                         "wheel_radius_m": d.wheel_radius},
+        "torque_split": {"track_rear_m": d.track_rear, "wheel_radius_m": d.wheel_radius,
+                         "torque_max": "the calibration list's torque_max"},
         "provenance": provenance,
     }
 
@@ -128,15 +136,18 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
             doc = json.loads(Path(path_or_doc).read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise GainSetError(f"{where}: cannot read a gain set ({e})") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in READS:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
         raise GainSetError(f"{where}: field 'format' is {got!r}, expected {FORMAT!r}")
     field = "vehicle.nominal_params"
     try:
         params = VehicleParams(**doc["vehicle"]["nominal_params"])
+        field = "calibration"
+        cal = {c["name"]: c["value"] for c in doc["calibration"]}
+        owned = {o: {c["name"]: c["value"] for c in doc["calibration"] if c["owner"] == o} for o in ("controller", "noise")}
         field = "estimator"
         e = doc["estimator"]
-        fd = design_filter(e["method"], params, NoiseSettings(**e["noise"]), latency=e["latency_s"],
+        fd = design_filter(e["method"], params, NoiseSettings(**{**e["noise"], **owned["noise"]}), latency=e["latency_s"],
                            antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False,
                            control=True, kinematic=bool(e.get("kinematic", False)))
         field = "schedule"
@@ -147,13 +158,12 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
             raise GainSetError(f"rows must be {', '.join(ROWS)} in that order")
         field = "controller"
         ctl = TwoDofDesign(params, schedule=sched, **{k: (math.inf if v is None else v)
-                                                      for k, v in doc["controller"].items()})
+                                                      for k, v in {**doc["controller"], **owned["controller"]}.items()})
         field = "torque_split"
         ts = doc["torque_split"]
-        d = EcuDesign(dataclasses.replace(fd, schedule=sched), ctl, float(ts["torque_max_nm"]),
+        d = EcuDesign(dataclasses.replace(fd, schedule=sched), ctl, float(cal.get("torque_max", 1.0)),
                       float(ts["track_rear_m"]), float(ts["wheel_radius_m"]))
         field = "calibration"
-        cal = {c["name"]: c["value"] for c in doc["calibration"]}
         d = _apply_calibration(d, cal)
         field = "state"
         if doc["state"]["size"] != d.n_state:
