@@ -203,10 +203,10 @@ def soak(args, seed: int) -> tuple[list[str], bool]:
 
     if len(spin):
         t_s = spin[-1] * DT
-        for a, b in ((0, 30), (30, 120), (120, 1e9)):
-            m = (np.arange(len(be)) * DT >= t_s + a) & (np.arange(len(be)) * DT < t_s + b) & (vx * 3.6 > BOUND_SPEED)
+        for w0, w1 in ((0, 30), (30, 120), (120, 1e9)):
+            m = (np.arange(len(be)) * DT >= t_s + w0) & (np.arange(len(be)) * DT < t_s + w1) & (vx * 3.6 > BOUND_SPEED)
             if m.any():
-                print(f"  after the last slide beyond 20 deg (t = {t_s:.1f} s), {a}-{b:g} s later above "
+                print(f"  after the last slide beyond 20 deg (t = {t_s:.1f} s), {w0}-{w1:g} s later above "
                       f"{BOUND_SPEED:.0f} km/h: sideslip error RMS {np.sqrt(np.mean(be[m] ** 2)):.3f} deg, max "
                       f"{np.abs(be[m]).max():.3f} deg")
     fast = vx * 3.6 > BOUND_SPEED

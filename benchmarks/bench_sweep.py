@@ -72,12 +72,13 @@ def kernel_shares(cfg: sw.SweepConfig, cases: list[sw.Case]) -> dict | None:
     setup = [sw.case_setup(cfg, c) for c in block]
     n = samples(prog.spec, setup[0][3][0])
     U = np.empty((len(block), n, prog.nin))
-    z0, pv = [], []
+    z0_rows: list = []
+    pv_rows: list = []
     for q, (true, sens, dist, mans) in enumerate(setup):
         _, z, p = prog.inputs(true, mans[0], dist, sens, block[q].seed, out=U[q])
-        z0.append(z)
-        pv.append(p)
-    z0, pv = np.array(z0), np.array(pv)
+        z0_rows.append(z)
+        pv_rows.append(p)
+    z0, pv = np.array(z0_rows), np.array(pv_rows)
     theta = sw.case_thetas(cfg, prog, sw.PAPER, block)
     Y, E = prog.run_batch(U, z0, pv, theta)
     x0, u, diff = _plant.retrace(prog.spec, kernel, U, z0, pv, E, Y)

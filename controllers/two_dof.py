@@ -33,6 +33,7 @@ held.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -41,6 +42,9 @@ from evstab.plants.backend import NUMPY
 from evstab.plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
 from evstab.plants.errors import DesignError
 from evstab.plants.signals import Layout, Signal
+
+if TYPE_CHECKING:
+    from .schedule import SpeedSchedule
 
 
 
@@ -168,7 +172,7 @@ class TwoDofDesign:
     mu_tau_up: float = 2.0
     """Time constant [s] of its recovery towards ``mu_max``."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
-    schedule: object = None
+    schedule: SpeedSchedule | None = None
     """A :class:`controllers.schedule.SpeedSchedule` (firmware: coefficients and reference gains from
     tables), or None (exact model)."""
 

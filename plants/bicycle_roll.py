@@ -18,7 +18,7 @@ import numpy as np
 from .backend import ops_for, unpack
 from .bicycle import INPUTS, V_MIN, command_map, tire_forces
 from .model import DISTURBANCES, PlantModel
-from .params import G, VehicleParams
+from .params import G, VehicleParams, known
 
 STATES = ("beta", "yaw_rate", "roll", "roll_rate", "yaw", "x", "y")
 REQUIRED = ("sprung_mass", "roll_inertia", "roll_damping", "roll_stiffness", "roll_arm")
@@ -30,11 +30,13 @@ def _lateral(x, u, w, p: VehicleParams):
     vx = o.fmax(c.vx, V_MIN)
     fyf, fyr = tire_forces(s.beta, s.yaw_rate, c.steer, vx, p)
     fy = fyf + fyr + d.lateral_force - p.mass * G * o.sin(d.bank)
-    msh = p.sprung_mass * p.roll_arm
+    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia",
+                                 model="the bicycle with roll")
+    msh = ms * hs
     # Solve [M, -msh; -msh, I_x] [a_y; phi''] = [F_y; M_roll] in closed form.
-    m_roll = -p.roll_damping * s.roll_rate - p.roll_stiffness * s.roll + d.roll_moment_dist
-    det = p.mass * p.roll_inertia - msh * msh
-    ay = (p.roll_inertia * fy + msh * m_roll) / det
+    m_roll = -cx * s.roll_rate - kx * s.roll + d.roll_moment_dist
+    det = p.mass * ix - msh * msh
+    ay = (ix * fy + msh * m_roll) / det
     roll_acc = (p.mass * m_roll + msh * fy) / det
     yaw_acc = (fyf * p.lf - fyr * p.lr + c.yaw_moment + d.yaw_moment_dist) / p.yaw_inertia
     return o, s, c, vx, ay, roll_acc, yaw_acc

@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import ManeuverError
 from .params import G, VehicleParams
-from .paths import Path, path_from_function
+from .paths import DriverModel, Path, path_from_function
 
 MANEUVERS = ("sine-lane-change", "step-steer", "ramp-steer", "constant-radius", "sine-with-dwell",
              "iso3888-1", "dlc-000")
@@ -46,7 +46,7 @@ class Maneuver:
     events: dict = field(default_factory=dict)
     cones: np.ndarray | None = None
     """Cone positions (x, y) [m], one row per cone, where the manoeuvre has them."""
-    driver: object | None = None
+    driver: DriverModel | None = None
     """How the path is driven (a :class:`plants.paths.DriverModel`); None: :class:`plants.paths.PathDriver`."""
     speed_profile: Callable[[np.ndarray], np.ndarray] | None = None
     """The speed demand [m/s] over time (None: ``speed`` throughout); the run starts at ``speed``."""
@@ -73,6 +73,8 @@ class Maneuver:
     def path_driver(self, params: VehicleParams, dt: float):
         """The driver that follows ``path`` for a car of ``params``, stepped every ``dt`` [s]."""
         from .paths import PathDriver
+        if self.path is None:
+            raise ManeuverError(f"{self.name}: an open-loop manoeuvre has no path to follow")
         return PathDriver(self.path, params) if self.driver is None else self.driver.make(self.path, params, dt)
 
     def drive_on(self, t: np.ndarray) -> np.ndarray:

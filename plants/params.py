@@ -1,6 +1,6 @@
 """Vehicle parameter sets: a frozen, validated dataclass and its TOML loader.
 
-The TOML format is described in ``DESIGN.md``::
+The TOML format is described in docs/formats.md::
 
     [meta]
     name = "..."
@@ -371,3 +371,14 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
     except (OSError, UnicodeDecodeError) as exc:
         raise ParameterError(f"{path}: cannot read as UTF-8 text: {exc}") from None
     return parse_vehicle_toml(text, str(path))
+
+
+def known(p, *names: str, model: str = "this model") -> tuple[float, ...]:
+    """The values of the optional fields ``names`` of the parameters ``p`` that ``model`` needs: floats, or a
+    trace's symbols where ``p`` is a :func:`toolkit.kernels.compiled.symbolic_view`. An unset one is a
+    :class:`ParameterError` naming it (as :meth:`VehicleParams.require`)."""
+    missing = [n for n in names if getattr(p, n) is None]
+    if missing:
+        raise ParameterError(f"{getattr(p, 'name', 'vehicle')}: {model} needs vehicle parameter(s) "
+                             f"{', '.join(missing)}; add them to the [vehicle] table")
+    return tuple(getattr(p, n) for n in names)

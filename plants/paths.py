@@ -116,6 +116,10 @@ class HumanDriver:
     preview_time: float = 0.1
     gain_lateral: float = 1.5
     max_steer: float = 0.6
+    _heading: np.ndarray = field(init=False, repr=False, compare=False)
+    """The path's heading at each point [rad], unwrapped (set from the path)."""
+    _kappa: np.ndarray = field(init=False, repr=False, compare=False)
+    """The path's curvature at each point [1/m] (set from the path)."""
 
     def __post_init__(self) -> None:
         if not (self.dt > 0 and self.delay >= 0 and self.lag >= 0 and self.preview_time >= 0):

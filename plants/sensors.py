@@ -2,8 +2,8 @@
 
 Measurements are drawn from the truth signals of a run, with every noise source
 seeded from one seed (one independent stream per sensor, so adding a sensor does
-not change the others). Units and signs are those of the drive-log schema in
-``DESIGN.md``.
+not change the others). Units and signs are those of the drive-log schema
+(docs/formats.md).
 
 GPS: fixes every ``1 / gps_rate`` s (from ``gps_start``). Each fix reports the
 antenna's course ``yaw + atan2(v_y + r x_a, v_x - r y_a)`` (same sense and

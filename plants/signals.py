@@ -55,12 +55,17 @@ def _length(vec) -> int:
     return int(shape[0])
 
 
-class Layout(tuple):
+class Layout(tuple[str, ...]):
     """An ordered set of named entries of a vector (see the module docstring).
 
     ``Layout("ecu inputs", [Signal("dt", "s", "..."), ...])``; entries may also be given as
     names or as ``(name, unit, doc)`` tuples.
     """
+
+    title: str
+    signals: tuple["Signal", ...]
+    _offsets: dict[str, int]
+    size: int
 
     def __new__(cls, title: str, signals):
         sigs = tuple(_as_signal(s) for s in signals)
@@ -89,7 +94,7 @@ class Layout(tuple):
         return f"Layout({self.title!r}, {tuple(self)!r})"
 
     # ---------------------------------------------------------------- where an entry lives
-    def index(self, name: str) -> int:  # noqa: D102  (tuple.index's meaning: the offset of ``name``)
+    def index(self, name: str) -> int:  # type: ignore[override]  # (tuple.index's meaning: the offset of ``name``)
         """Offset of entry ``name`` in the vector."""
         try:
             return self._offsets[name]

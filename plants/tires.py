@@ -49,8 +49,9 @@ EPS_SLIP = 1e-9
 """Regularises |u| at zero slip (keeps F and its derivatives finite)."""
 
 
-def magic_formula_normalised(u, shape: float, curvature: float, ops):
-    """Normalised Magic Formula ``F(u)`` with unit initial slope (peak value 1)."""
+def magic_formula_normalised(u, shape, curvature, ops):
+    """Normalised Magic Formula ``F(u)`` with unit initial slope (peak value 1); ``shape`` C and ``curvature`` E
+    numbers or casadi symbols."""
     b = 1.0 / shape
     bu = b * u
     return ops.sin(shape * ops.arctan(bu - curvature * (bu - ops.arctan(bu))))

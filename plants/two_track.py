@@ -33,7 +33,7 @@ import numpy as np
 
 from .backend import ops_for, smooth_abs, smooth_max, unpack
 from .model import COMMANDS, DISTURBANCES, PlantModel, torque_difference
-from .params import G, VehicleParams
+from .params import G, VehicleParams, known
 from .tires import combined_forces
 
 STATES = ("vx", "vy", "yaw_rate", "roll", "roll_rate",
@@ -57,21 +57,23 @@ SPEED_GAIN = 2.0
 
 def wheel_geometry(p: VehicleParams):
     """Contact-point coordinates (x_i, y_i) [m] of FL, FR, RL, RR relative to the CG."""
-    tf, tr = p.track_front / 2.0, p.track_rear / 2.0
+    t_f, t_r = known(p, "track_front", "track_rear", model="the two-track")
+    tf, tr = t_f / 2.0, t_r / 2.0
     return (p.lf, p.lf, -p.lr, -p.lr), (tf, -tf, tr, -tr)
 
 
 def _forces(x, u, w, p: VehicleParams):
     o = ops_for(x, u, w)
     s, c, d = unpack(x, STATES), unpack(u, INPUTS), unpack(w, DISTURBANCES)
-    L, h, R = p.wheelbase, p.cg_height, p.wheel_radius
+    L = p.wheelbase
+    h, R, t_f, t_r = known(p, "cg_height", "wheel_radius", "track_front", "track_rear", model="the two-track")
     xs, ys = wheel_geometry(p)
     share = 0.5 if p.roll_stiffness_front_share is None else p.roll_stiffness_front_share
     fz0 = (p.mass * G * p.lr / L / 2.0, p.mass * G * p.lr / L / 2.0,
            p.mass * G * p.lf / L / 2.0, p.mass * G * p.lf / L / 2.0)
     d_long = p.mass * h * s.ax_f / L / 2.0
-    d_lat_f = share * p.mass * h * s.ay_f / p.track_front
-    d_lat_r = (1.0 - share) * p.mass * h * s.ay_f / p.track_rear
+    d_lat_f = share * p.mass * h * s.ay_f / t_f
+    d_lat_r = (1.0 - share) * p.mass * h * s.ay_f / t_r
     fz_raw = (fz0[0] - d_long - d_lat_f, fz0[1] - d_long + d_lat_f,
               fz0[2] + d_long - d_lat_r, fz0[3] + d_long + d_lat_r)
     fz = [0.5 * (q + smooth_abs(q, FZ_MIN, o)) for q in fz_raw]
@@ -108,11 +110,13 @@ def _forces(x, u, w, p: VehicleParams):
 
 def _accelerations(x, u, w, p: VehicleParams):
     o, s, c, d, fz, fxw, fx, fy, mz = _forces(x, u, w, p)
-    msh = p.sprung_mass * p.roll_arm
-    m_roll = (-p.roll_stiffness * s.roll - p.roll_damping * s.roll_rate
-              + p.sprung_mass * G * p.roll_arm * o.sin(s.roll) + d.roll_moment_dist)
-    det = p.mass * p.roll_inertia - msh * msh
-    ay = (p.roll_inertia * fy + msh * m_roll) / det
+    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia",
+                                 model="the two-track")
+    msh = ms * hs
+    m_roll = (-kx * s.roll - cx * s.roll_rate
+              + ms * G * hs * o.sin(s.roll) + d.roll_moment_dist)
+    det = p.mass * ix - msh * msh
+    ay = (ix * fy + msh * m_roll) / det
     roll_acc = (p.mass * m_roll + msh * fy) / det
     ax = fx / p.mass
     yaw_acc = mz / p.yaw_inertia
@@ -180,7 +184,7 @@ def initial(p: VehicleParams, speed: float):
     x0 = np.zeros(len(STATES))
     x0[STATES.index("vx")] = speed
     for name in ("omega_fl", "omega_fr", "omega_rl", "omega_rr"):
-        x0[STATES.index(name)] = speed / p.wheel_radius
+        x0[STATES.index(name)] = speed / known(p, "wheel_radius", model="the two-track")[0]
     return x0
 
 
@@ -190,7 +194,8 @@ def max_stable_step(p: VehicleParams) -> float:
     The wheel-spin eigenvalue is about ``-C_kappa R^2 / (I_w V_LOW)``; RK4 is stable
     on the negative real axis up to ``|lambda h| = 2.78``; 2.0 keeps a margin.
     """
-    lam = p.longitudinal_stiffness * p.wheel_radius**2 / (p.wheel_inertia * V_LOW)
+    c_kappa, r_w, i_w = known(p, "longitudinal_stiffness", "wheel_radius", "wheel_inertia", model="the two-track")
+    lam = c_kappa * r_w**2 / (i_w * V_LOW)
     return 2.0 / lam if lam > 0 else math.inf
 
 

@@ -28,7 +28,8 @@ def main(out, quick: bool = False) -> list[dict]:
     out = out_dir(out)
     p = load_vehicle("micro-ev")
     man = step_steer(25 / 3.6, np.radians(5.0), start=1.0, duration=5.0 if quick else 10.0)
-    rows, runs = [], {}
+    rows: list[dict] = []
+    runs: dict = {}
     for ctl in CONTROLLERS:
         r = simulate(p, "two-track", man, controller=ctl, design=seed_003_design(p), disturbances=Disturbances(wind=default_wind(p)))
         c = r.commands

@@ -45,7 +45,8 @@ def main(out, quick: bool = False) -> list[dict]:
     mans = {"sine lane change": make_maneuver("sine-lane-change", p, SPEED),
             "step steer 3 m/s^2, 20 s": step_steer(SPEED, steer_for_lateral_acceleration(p, SPEED, 3.0),
                                                    duration=20.0)}
-    rows, keep = [], None
+    rows: list = []
+    keep: tuple | None = None
     for mname, man in mans.items():
         for plant in ("bicycle-roll", "two-track"):
             c, l2, rk, vx, vy = run_case(p, plant, man)
@@ -66,6 +67,7 @@ def main(out, quick: bool = False) -> list[dict]:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    assert keep is not None, "the figure's run (a step steer on the two-track) is in the grid"
     c, l2, rk, vx, vy = keep
     t = c["t"]
     fig, ax = plt.subplots(3, 1, figsize=(8, 6), sharex=True)

@@ -136,7 +136,7 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
     """The ECU resets at 100 km/h (see the module): one row per case and seed."""
     ecu = loop_ecu("two-dof", p).ecu
     v = RESET_KMH / 3.6
-    cases = [(f"left turn {ay:g} m/s^2, mu 1", constant_radius(v, v * v / ay, laps=0.25, lead_in=60.0), Disturbances(),
+    cases: list[tuple] = [(f"left turn {ay:g} m/s^2, mu 1", constant_radius(v, v * v / ay, laps=0.25, lead_in=60.0), Disturbances(),
               RESET_AT) for ay in RESET_TURNS_AY]
     cases.append(("ISO 3888-1, mu 0.5", make_maneuver("iso3888-1", p, v), Disturbances(friction=Friction(mu=0.5)),
                   None))
@@ -165,7 +165,7 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
     return rows
 
 
-RECOVERY_VARIANTS = (("recovery 0.2 s (the default)", {}), ("recovery 1 s", {"recover_time": 1.0}),
+RECOVERY_VARIANTS: tuple[tuple[str, dict], ...] = (("recovery 0.2 s (the default)", {}), ("recovery 1 s", {"recover_time": 1.0}),
                      ("recovery 0.2 s, authority held 2.5 s after the restart", {"restart_hold": 2.5}))
 RECOVERY_SIGNALS = ("yaw_rate", "speed", "steer_cmd_driver")
 
@@ -246,7 +246,7 @@ def main(out, quick: bool = False) -> list[dict]:
                      ("FAIL: harm" if not r["no_harm"] else "FAIL: late")] for r in resets])
     keys = list(dict.fromkeys(k for r in rows for k in r))
     write_table([{k: r.get(k, "") for k in keys} for r in rows], out / "firmware_faults.csv")
-    table = {}
+    table: dict = {}
     for r in rows:
         t = table.setdefault((r["signal"], r["fault"]), {"steer": 0.0, "nz": 0.0, "time": 0.0, "named": None,
                                                           "excess": -np.inf, "by_fault": -np.inf, "ok": True,

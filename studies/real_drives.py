@@ -244,7 +244,7 @@ def main(out, quick: bool = False, data=None) -> list[dict]:
     write_markdown(out / "real_drives_readme.md", header, table)
     cold = cold_starts(every[:len(GTI)], n=2 if quick else COLD_STARTS, quick=quick)
     write_table(cold, out / "real_drives_cold.csv")
-    by = {}
+    by: dict = {}
     for r in cold:
         by.setdefault(r["drive"], []).append(r)
     write_markdown(out / "real_drives_cold.md", ["drive", "starts", "settled within 3 s", "slowest settle [s]",

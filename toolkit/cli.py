@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
+from typing import Any
 import sys
 
 import numpy as np
@@ -175,6 +175,8 @@ def cmd_estimate(args) -> int:
     write_log_table(args.out, cols)
     if args.save_calibration:
         from .estimation.calibration import write_calibration
+        if est.final is None:
+            raise EvstabError(f"--save-calibration: method '{args.method}' has no gyro-bias estimate to save")
         write_calibration(args.save_calibration, est.final["gyro_bias"], est.final["gyro_bias_std"],
                           _command_line() or "evstab estimate")
     fixes = int(np.isfinite(log["gps_course"]).sum())
@@ -363,7 +365,7 @@ def cmd_emulate(args) -> int:
     from .logs.drivelog import write_log_csv
 
     log = read_log(args.log, None, args.channel_map)
-    gyro = dict(PRODUCTION_GYRO) if args.gyro == "production" else {"gyro": "reference"}
+    gyro: dict[str, Any] = dict(PRODUCTION_GYRO) if args.gyro == "production" else {"gyro": "reference"}
     for key, value in (("gyro_bias", args.gyro_bias), ("gyro_scale", args.gyro_scale),
                        ("gyro_noise", args.gyro_noise)):
         if value is not None:
@@ -484,6 +486,14 @@ class _Help(argparse.HelpFormatter):
         return text
 
 
+class _Parser(argparse.ArgumentParser):
+    """A sub-command's parser: its help states each default (:class:`_Help`)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Help)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .estimation.spec import LOOP_METHODS
 
@@ -491,7 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     from evstab import __version__
     ap.add_argument("--version", action="version", version=f"evstab {__version__}")
     sub = ap.add_subparsers(dest="command", required=True,
-                            parser_class=functools.partial(argparse.ArgumentParser, formatter_class=_Help))
+                            parser_class=_Parser)
     sp = sub.add_parser("vehicles", help="list the bundled vehicle parameter sets")
     sp.set_defaults(func=cmd_vehicles)
     sp = sub.add_parser("simulate", help="simulate a manoeuvre and write a drive-log CSV")

@@ -38,7 +38,7 @@ def test_layer2_under_30_percent_roll_model_error():
 
     assert rms(l2["roll"] - c["roll_true"]) < 1.05 * rms(rk - c["roll_true"])
     assert rms(l2["vy"] - c["vy_true"]) < 0.2 * rms(vy - c["vy_true"])
-    # positive roll in a left turn (ISO 8855, DESIGN.md): the estimate has the truth's sign at the end
+    # positive roll in a left turn (ISO 8855, docs/models.md): the estimate has the truth's sign at the end
     assert np.sign(l2["roll"][-1]) == np.sign(c["roll_true"][-1]) == 1.0
 
 

@@ -326,7 +326,7 @@ def test_json_messages_read_like_cdr(tmp_path):
 
 
 def test_horizontal_velocity_by_hand():
-    """Course 0 east, counter-clockwise (DESIGN.md's yaw sense): north is +90 deg in ENU (0, 1) and NED (1, 0),
+    """Course 0 east, counter-clockwise (the yaw sense of docs/models.md): north is +90 deg in ENU (0, 1) and NED (1, 0),
     west 180 deg; crossing south-west to west the angle is unwrapped, not folded to -180; no velocity has no
     course; the ground speed is the norm. Cross-checked against the receiver-bearing conversion nmea.yaw_sense
     (bearing clockwise from north)."""

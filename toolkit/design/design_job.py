@@ -294,10 +294,10 @@ def response_rows(cfg: sw.SweepConfig, points: list[sw.DesignPoint], decimate: i
 def compare(rows: list[dict]) -> dict:
     """Worst case and stability of each design over the sweep, and the case-by-case relation
     ("better": lower by at least :data:`BETTER_MARGIN` of the other's cost)."""
-    by = {}
+    by: dict = {}
     for r in rows:
         by.setdefault(r["design"], {})[r["case_id"]] = r
-    out = {"cases": len(next(iter(by.values())))}
+    out: dict = {"cases": len(next(iter(by.values())))}
     for name, rs in by.items():
         worst = max(rs.values(), key=lambda r: r["cost"])
         out[name] = {"worst_cost": worst["cost"], "worst_case_id": worst["case_id"],

@@ -119,6 +119,7 @@ def run_case(cfg, case: LimitCase, point=None, a_cache: dict | None = None, name
     from ..ecu.step import EcuDesign
     plant = case.plant or cfg.plant
     p = cfg.nominal
+    controller: str | None
     if isinstance(point, EcuDesign):
         controller, estimator, design = "two-dof", point.filter.method, point
     elif isinstance(point, TwoDofDesign):

@@ -211,7 +211,7 @@ def derive_nominal(spec: str) -> tuple[VehicleParams, str]:
 
 
 def to_toml(p: VehicleParams, header: str = "", notes: str = "") -> str:
-    """A vehicle file (DESIGN.md format) for ``p``; numbers written with repr (round trip exact)."""
+    """A vehicle file (the format of docs/formats.md) for ``p``; numbers written with repr (round trip exact)."""
     lines = [f"# {header}"] if header else []
     lines += ["[meta]", f"name = {json.dumps(p.name)}", f"source = {json.dumps(p.source)}"]
     if notes:

@@ -32,7 +32,7 @@ def fmt(v) -> str:
     if isinstance(v, (float, np.floating)):
         if not np.isfinite(v):
             return str(v)
-        if 1e4 <= abs(v) < 1e9:  # a large number in full (34729, not 3.473e+04)
+        if 1e4 <= abs(float(v)) < 1e9:  # a large number in full (34729, not 3.473e+04)
             return f"{v:.0f}"
         return f"{v:.4g}"
     return str(v)
@@ -222,7 +222,7 @@ def verdict_lines(doc: dict, by: dict, lim_by: dict, responses: list[dict], desi
         lost = sum(1 for r in rows.values() if not r["stable"])
         lines.append(f"Weakest: {_case_text(w)}, cost {fmt(w['cost'])}: {what}"
                      + (f"; {lost} case(s) in all are not stable." if lost else "."))
-    peaks = {}
+    peaks: dict = {}
     for r in responses:
         if r["controller"] == tuned:
             k = (r["mu"], r["maneuver"])
@@ -251,11 +251,11 @@ def build(data: dict) -> Doc:
 
     D.h(2, "Result")
     lim = data["limits"]
-    lim_by = {}
+    lim_by: dict = {}
     for r in lim:
         lim_by.setdefault(r["case"], {})[r["design"]] = r
     labels = ["no control"] + designs
-    by = {}
+    by: dict = {}
     for r in sweep:
         by.setdefault(r["design"], {})[r["case_id"]] = r
     D.verdict(verdict_lines(doc, by, lim_by, data["responses"], designs))

@@ -206,14 +206,15 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
     for radius in (BOUNDS,) + TRUST_RADII:
         if radius != BOUNDS and found is None:
             last["missed"] = []
-            found = check(*retune(radius, []), radius)
+            point, rows = retune(radius, [])
+            found = check(point, rows, radius)
         for _ in range(CUT_ROUNDS):
             if found is not None or not last.get("missed"):
                 break
             got = retune(radius, last.pop("missed"))
             if got is None:
                 break
-            found = check(*got, radius)
+            found = check(got[0], got[1], radius)
         if found is not None:
             break
     if found is not None:

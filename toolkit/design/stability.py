@@ -110,7 +110,7 @@ def analysis_states(spec) -> list[int]:
     """Loop-state entries the linearisation keeps: all but the filter's covariance and bookkeeping
     (gating counter, residual-prediction memory, initialisation flag, bias monitor), which at an
     equilibrium with zero innovations have zero derivative with respect to the rest."""
-    f = spec.ecu.ecu.filter
+    f = spec.ecu.design.filter
     return [i for i, n in enumerate(spec.state_names())
             if not (n.startswith("filter.") and n[7:] not in f.states and not n.startswith("filter.buf"))]
 
@@ -166,7 +166,7 @@ def equilibrium(design: TwoDofDesign, est: FilterDesign, speed: float, *, true_p
     w0 = DISTURBANCES.pack(lateral_force=0.0, yaw_moment_dist=0.0, roll_moment_dist=0.0, bank=0.0,
                            **{f"mu_{c}": true_params.mu for c in ("fl", "fr", "rl", "rr")})
     z = loop_initial_state(spec, model.initial_state(true_params, speed), true_params, speed, w0)
-    f = spec.ecu.ecu.filter
+    f = spec.ecu.design.filter
     lay = kalman_layout(f)
     if gps_rate is None:
         _, P = steady_state_gain(f, speed, dt)  # a-priori

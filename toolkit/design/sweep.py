@@ -333,15 +333,16 @@ def evaluate_cases(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint
                 # filled in place, case by case and signal by signal: each input signal's samples lie side
                 # by side (the lane kernel reads any strides), so that every write is contiguous
                 U = _workspace("inputs", (len(idx), prog.nin, n)).transpose(0, 2, 1)
-                z0, pv = [], []
+                z0_rows: list = []
+                pv_rows: list = []
                 for q, i in enumerate(idx):
                     true, sens, dist, mans = setup[i]
                     if (i, n) not in noise:
                         noise[(i, n)] = noise_matrix(sens, block[i].seed, n)
                     _, z, p = prog.inputs(true, mans[m], dist, sens, block[i].seed, out=U[q], noise=noise[(i, n)])
-                    z0.append(z)
-                    pv.append(p)
-                z0, pv = np.array(z0), np.array(pv)
+                    z0_rows.append(z)
+                    pv_rows.append(p)
+                z0, pv = np.array(z0_rows), np.array(pv_rows)
                 for j in range(len(points)):
                     Y, E = prog.run_batch(U, z0, pv, thetas[j][idx],
                                           out=(_workspace("truth", (len(idx), n, len(TRUTH))),
@@ -415,9 +416,9 @@ def run_sweep(cfg: SweepConfig, cases: list[Case], points: list[DesignPoint], *,
             client = Client(scheduler)
         try:
             program(cfg.spec()).compile()  # once here; the workers load the cached library
-            futs = [client.submit(evaluate_cases, cfg, b, points, linear, pure=False) for b in batches]
-            index = {f.key: i for i, f in enumerate(futs)}
-            for f in dask_completed(futs):
+            dask_futs = [client.submit(evaluate_cases, cfg, b, points, linear, pure=False) for b in batches]
+            index = {f.key: i for i, f in enumerate(dask_futs)}
+            for f in dask_completed(dask_futs):
                 results[index[f.key]] = f.result()
                 bar.update(len(batches[index[f.key]]))
         finally:

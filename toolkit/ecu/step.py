@@ -43,7 +43,8 @@ from . import guard as guard_mod
 from .guard import GuardSettings
 from ..estimation import kalman
 from ..estimation.spec import LOOP_METHODS, FilterDesign
-from ..estimation.transition import Transition, build_transition
+from ..estimation.tabulate import build_transition
+from ..estimation.transition import Transition
 
 INPUTS = Layout("ECU inputs", [
     Signal("dt", "s", "time since the previous step (the control period)"),
@@ -204,7 +205,10 @@ class EcuDesign:
 
     @property
     def schedule(self) -> SpeedSchedule:
-        return self.controller.schedule
+        s = self.controller.schedule
+        if s is None:
+            raise ModelError("an ECU design's controller reads its model from a speed schedule; this one has none")
+        return s
 
     @property
     def layout(self) -> Layout:
@@ -230,7 +234,10 @@ class EcuDesign:
     @property
     def transition(self) -> Transition:
         """The filter's transition table (:mod:`toolkit.estimation.transition`)."""
-        return self.filter.transition
+        t = self.filter.transition
+        if t is None:
+            raise ModelError("an ECU design's filter propagates with a tabulated transition; this one has none")
+        return t
 
     @property
     def n_schedule_inputs(self) -> tuple[int, int]:
@@ -281,7 +288,7 @@ class EcuDesign:
         cal = self.calibration()
         if len(values) != len(cal):
             raise ModelError(f"expected {len(cal)} calibration values, got {len(values)}")
-        by = {"controller": {}, "noise": {}, "ecu": {}}
+        by: dict[str, dict] = {"controller": {}, "noise": {}, "ecu": {}}
         for c, v in zip(cal, values):
             by[c.owner][c.name] = v
         noise = with_fields(self.filter.noise, **by["noise"])

@@ -70,7 +70,7 @@ def observability(d: FilterDesign, v: float, rtol: float = 1e-9) -> Observabilit
     C = measurement_rows(d, v)
     n = d.n
     eig = np.linalg.eigvals(A)
-    distinct = []
+    distinct: list = []
     for lam in eig:
         if not any(abs(lam - mu) <= 1e-9 * max(1.0, abs(mu)) for mu in distinct):
             distinct.append(lam)

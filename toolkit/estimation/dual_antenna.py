@@ -12,7 +12,7 @@ slope, with the small terms ``c r'`` and ``h phi''`` left to the process noise):
 (002 eq. 5: the roll from a lateral baseline), and the velocity direction gives
 ``nu = psi + (u_y - h_a p) / U`` (002 eq. 6-9, small angles; ``h_a`` the antenna's height
 above the roll centre, 0 unless given: the simulator's antenna has no height).
-Sideslip ``beta = atan2(u_y, u_x)``; the tire slip angles follow from it (DESIGN.md
+Sideslip ``beta = atan2(u_y, u_x)``; the tire slip angles follow from it (docs/models.md
 signs: ``alpha_f = delta - beta - l_f r / u_x``, ``alpha_r = -beta + l_r r / u_x``) and
 :mod:`toolkit.estimation.identify` turns them and the lateral acceleration into the
 cornering stiffness. Bank and body roll cannot be told apart by these measurements

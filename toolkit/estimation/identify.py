@@ -1,7 +1,7 @@
 """Cornering-stiffness identification from a sideslip estimate and the yaw rate (seed 001 sec. VI).
 
 With the sideslip known (from the kinematic filter: course minus integrated heading),
-each sample gives the axle slip angles of the bicycle model (ISO 8855 signs, DESIGN.md)
+each sample gives the axle slip angles of the bicycle model (ISO 8855 signs, docs/models.md)
 
     alpha_f = delta - beta - l_f r / v,        alpha_r = -beta + l_r r / v,
 

@@ -258,12 +258,13 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     # 1. predict with the model rediscretised at this speed
     dyn = v >= nz.min_speed
     v_m = o.fmax(v, nz.min_speed)
-    tabulated = d.transition is not None
-    if tabulated:  # the ECU: the model discretised at export on the schedule's grid (toolkit.estimation.transition)
+    tr = d.transition
+    tabulated = tr is not None
+    if tr is not None:  # the ECU: the model discretised at export on the schedule's grid (toolkit.estimation.transition)
         if d.steer_noise:
             raise ModelError(f"'{d.method}': a tabulated transition has no steer noise")
-        rows = d.transition.table.values(v_m, o)
-        E, Gu = d.transition.matrices(v_m, dt, dyn, o, rows=rows)
+        rows = tr.table.values(v_m, o)
+        E, Gu = tr.matrices(v_m, dt, dyn, o, rows=rows)
     else:
         A, B = continuous_model(d, v_m, o, dynamic=dyn)
     uin = o.stack([steer, nzm])
@@ -280,8 +281,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
         settled = dyn * (init > 1.0 + nz.kinematic_settle)
-        if tabulated:
-            a_c, b_c = d.transition.continuous(rows, dyn, o)
+        if tr is not None:
+            a_c, b_c = tr.continuous(rows, dyn, o)
             w_kin, q, kin, kin_state, lagged = _kinematic_weight(
                 d, [a_c.get((ib, j), 0.0) for j in range(n)], [b_c.get((ib, k), 0.0) for k in (0, 1)], q, x, uin,
                 g, v_m, settled, zs.kin, o)
@@ -425,7 +426,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         init = o.if_else(init > 0.5, init * gyro_ok + (1.0 - gyro_ok), init)
     z_next = lay.pack(o=o, x=x, P=o.flatten(P), rejects=rejects, eps=eps, init=init, gain=gain, **extra)
     nan = float("nan")
-    est = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
+    est: dict[str, object] = {s: x[d.index(s)] for s in ("d1", "d2", "gyro_bias") if s in d.states}
     if adapts(d):
         est["noise_scale"] = qscale
     beta = significant_sideslip(d, x, P, o) if conditions_sideslip(d) else x[ib]

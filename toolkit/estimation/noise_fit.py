@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,7 +77,8 @@ class NoiseFit:
     """Parameters that ended on a bound (the log does not pin them)."""
 
     def noise(self, base: NoiseSettings) -> NoiseSettings:
-        return dataclasses.replace(base, **dict(zip(self.parameters, self.values)))
+        changes: dict[str, Any] = dict(zip(self.parameters, self.values))
+        return dataclasses.replace(base, **changes)
 
 
 def _terms(Y: np.ndarray, t: np.ndarray, warmup: float, gate: float):
@@ -203,7 +205,7 @@ def load_noise(path) -> NoiseSettings:
         raise DataError(f"{path}: a noise file has the tables [meta] and [noise]" +
                         (f"; unknown: {', '.join(unknown)}" if unknown else "; [noise] is missing"))
     fields = {f.name: f for f in dataclasses.fields(NoiseSettings)}
-    vals = {}
+    vals: dict[str, Any] = {}
     for k, v in doc["noise"].items():
         if k not in fields:
             raise DataError(f"{path}: [noise] has no field '{k}'; fields: {', '.join(fields)}")

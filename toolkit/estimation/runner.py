@@ -33,7 +33,7 @@ class Estimate:
     columns: dict
     method: str
     backend: str
-    final: dict = None
+    final: dict | None = None
     """What a later drive may start from (:func:`toolkit.estimation.calibration`): the gyro bias at the last
     row and its standard deviation (from the filter's covariance after the log's last compiled chunk, which
     holds the last row without a fix to the chunk's end: slightly wider than at the last row)."""
@@ -85,11 +85,12 @@ def _step_function(d: FilterDesign, tuned: tuple[str, ...] = ()):
         zn, y = kalman.step(d, z, u, CASADI, with_course=with_course)
         variants.append(ca.Function("est_step_" + ("fix" if with_course else "nofix"), [z, u] + extra, [zn, y]))
     switch = ca.Function.conditional("est_switch", [variants[0]], variants[1])
-    z, u = ca.MX.sym("z", size), ca.MX.sym("u", nin)
+    zm, um = ca.MX.sym("z", size), ca.MX.sym("u", nin)
     thm = [ca.MX.sym("theta", len(tuned))] if tuned else []
     # index 0 -> no fix, anything else -> the default (full) step
-    zn, y = switch(ca.if_else(u[kalman.INPUTS.index("fix")] > 0.5, 1, 0), z, u, *thm)
-    return ca.Function("est_step", [z, u] + thm, [zn, y], ["z", "u"] + (["theta"] if tuned else []), ["z_next", "y"])
+    znm, ym = switch(ca.if_else(um[kalman.INPUTS.index("fix")] > 0.5, 1, 0), zm, um, *thm)
+    return ca.Function("est_step", [zm, um] + thm, [znm, ym], ["z", "u"] + (["theta"] if tuned else []),
+                       ["z_next", "y"])
 
 
 class CompiledFilter:
@@ -102,7 +103,8 @@ class CompiledFilter:
         if self.tuned and backend == "numpy":
             raise ModelError("a filter with run-time noise settings runs compiled (backend c or vm)")
         self.backend = "numpy" if backend == "numpy" else "vm"
-        self._step_fn = self._chunk_fn = None
+        self._step_fn: ca.Function | None = None
+        self._chunk_fn: ca.Function | None = None
         if backend in ("auto", "c"):
             # a compiled filter loads without rebuilding the casadi graph
             self._c = load_chunk_library(cache_key("est", d, CHUNK, self.tuned), lambda: self.chunk_fn, "est_chunk",

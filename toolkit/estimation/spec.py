@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -71,6 +72,11 @@ from evstab.plants import VehicleParams
 from evstab.plants.bicycle import lateral_coefficients
 from evstab.plants.errors import ModelError
 from evstab.plants.sensors import SensorConfig
+
+if TYPE_CHECKING:
+    from evstab.controllers.schedule import SpeedSchedule
+
+    from .transition import Transition
 
 LOOP_METHODS = ("dakf", "amrkf", "dakf-paper", "kf", "kf-bias")
 """Methods the ECU step runs (the stability loop and firmware export): the Kalman filters of
@@ -306,14 +312,14 @@ class FilterDesign:
     latency: float = 0.0
     antenna_x: float = 0.0
     dt_nominal: float = 1e-3
-    schedule: object = None
+    schedule: SpeedSchedule | None = None
     """A :class:`controllers.schedule.SpeedSchedule`: the lateral model from tables (firmware), or None (exact)."""
     steer_noise: bool = False
     """Process noise through the steer input (``NoiseSettings.q_steer``; ``mbkf``)."""
     kinematic: bool = False
     """Blend the kinematic sideslip rate ``a_y / v - r`` into the sideslip row where the measured lateral
     acceleration departs from the linear model's (the tyres saturated; :func:`toolkit.estimation.kalman.step`)."""
-    transition: object = None
+    transition: Transition | None = None
     """A :class:`toolkit.estimation.transition.Transition`: the ECU's filter propagates with its model
     discretised at export time on the schedule's grid for the control period (firmware); None: the
     4th-order Taylor series at the current speed every sample."""

@@ -28,7 +28,6 @@ tabulated step differs from the Taylor step's by the bounds that test asserts.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,7 +53,7 @@ class Transition:
     """(row, column) of the tabulated entries of ``E``."""
     g_entries: tuple[tuple[int, int], ...]
     """(row, input) of the tabulated entries of ``G`` (inputs: steer, yaw moment)."""
-    table: object
+    table: SpeedTable
     """A :class:`controllers.schedule.SpeedTable` with the ``E`` rows then the ``G`` rows (or, inside a
     traced ECU step, the rows already read at this period's speed)."""
     held: tuple[tuple[int, int, float], ...]
@@ -117,40 +116,3 @@ def exact_discretisation(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.nd
         E = E + term
         gam = gam + term * (dt / (k + 1))
     return E, gam @ np.asarray(B, float)
-
-
-def build_transition(d, schedule, dt: float) -> Transition:
-    """The transition table of filter design ``d`` on ``schedule``'s grid (its coefficient rows at
-    each grid point) for the control period ``dt`` (cached by what it depends on)."""
-    key = (d.states, d.disturbance, float(d.noise.disturbance_tau), schedule, float(dt), bool(d.kinematic))
-    hit = _CACHE.get(key)
-    if hit is None:
-        if len(_CACHE) > 32:
-            _CACHE.clear()
-        hit = _CACHE[key] = _build(dataclasses.replace(d, schedule=schedule, transition=None), schedule, float(dt))
-    return hit
-
-
-_CACHE: dict = {}
-
-
-def _build(d, schedule, dt: float) -> Transition:
-    from .spec import continuous_model
-    As, Bs = (np.array(m) for m in zip(*(continuous_model(d, 1.0 / x, NUMPY, dynamic=True)
-                                         for x in schedule.inv_speed)))
-    Es, Gs = (np.array(m) for m in zip(*(exact_discretisation(A, B, dt) for A, B in zip(As, Bs))))
-    e_idx = tuple((int(i), int(j)) for i, j in zip(*np.nonzero(np.any(Es != 0.0, axis=0))))
-    g_idx = tuple((int(i), int(k)) for i, k in zip(*np.nonzero(np.any(Gs != 0.0, axis=0))))
-    rows = [tuple(float(v) for v in Es[:, i, j]) for i, j in e_idx] + \
-        [tuple(float(v) for v in Gs[:, i, k]) for i, k in g_idx]
-    a_idx = b_idx = ()
-    if d.kinematic:  # the sideslip row of the continuous model, which the kinematic path compares with a_y
-        ib = d.index("beta")
-        a_idx = tuple((ib, int(j)) for j in np.nonzero(np.any(As[:, ib] != 0.0, axis=0))[0])
-        b_idx = tuple((ib, int(k)) for k in np.nonzero(np.any(Bs[:, ib] != 0.0, axis=0))[0])
-        rows += [tuple(float(v) for v in As[:, i, j]) for i, j in a_idx] + \
-            [tuple(float(v) for v in Bs[:, i, k]) for i, k in b_idx]
-    A0, B0 = continuous_model(d, 1.0, NUMPY, dynamic=False)
-    E0, _ = exact_discretisation(A0, B0, dt)
-    held = tuple((int(i), int(j), float(E0[i, j])) for i, j in zip(*np.nonzero(E0)))
-    return Transition(float(dt), d.n, e_idx, g_idx, SpeedTable(schedule.inv_speed, tuple(rows)), held, a_idx, b_idx)

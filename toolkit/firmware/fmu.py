@@ -63,7 +63,7 @@ def _num(x: float) -> str:
 
 def _starts(d: EcuDesign) -> list[float]:
     starts = {**INPUT_START, "dt": d.filter.dt_nominal}
-    return [starts.get(n, 0.0) for n in INPUTS]
+    return [float(starts.get(n) or 0.0) for n in INPUTS]
 
 
 def variables_header(d: EcuDesign, gid: str) -> str:

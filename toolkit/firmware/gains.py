@@ -19,6 +19,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 from evstab.controllers.schedule import ROWS, RULE, UNITS, SpeedSchedule
 from evstab.controllers.two_dof import TwoDofDesign
@@ -146,10 +147,10 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
         cal = {c["name"]: c["value"] for c in doc["calibration"]}
         owned = {o: {c["name"]: c["value"] for c in doc["calibration"] if c["owner"] == o} for o in ("controller", "noise")}
         field = "estimator"
-        e = doc["estimator"]
-        fd = design_filter(e["method"], params, NoiseSettings(**{**e["noise"], **owned["noise"]}), latency=e["latency_s"],
-                           antenna_x=e["antenna_x_m"], dt=doc["control_period_s"], nominal=False,
-                           control=True, kinematic=bool(e.get("kinematic", False)))
+        est = doc["estimator"]
+        fd = design_filter(est["method"], params, NoiseSettings(**{**est["noise"], **owned["noise"]}),
+                           latency=est["latency_s"], antenna_x=est["antenna_x_m"], dt=doc["control_period_s"],
+                           nominal=False, control=True, kinematic=bool(est.get("kinematic", False)))
         field = "schedule"
         s = doc["schedule"]
         sched = SpeedSchedule(tuple(float(v) for v in s["axis"]["values"]),
@@ -187,6 +188,7 @@ def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
         if not (isinstance(v, (int, float)) and c.lower <= v <= c.upper):
             raise GainSetError(f"'{c.name}' is {v!r}, outside its limits [{c.lower:g}, {c.upper:g}] {c.unit}")
     ctl = dataclasses.replace(d.controller, **{c.name: float(values[c.name]) for c in cal if c.owner == "controller"})
-    noise = dataclasses.replace(d.filter.noise, **{c.name: float(values[c.name]) for c in cal if c.owner == "noise"})
+    noise_values: dict[str, Any] = {c.name: float(values[c.name]) for c in cal if c.owner == "noise"}
+    noise = dataclasses.replace(d.filter.noise, **noise_values)
     filt: FilterDesign = dataclasses.replace(d.filter, noise=noise)
     return dataclasses.replace(d, filter=filt, controller=ctl, torque_max=float(values["torque_max"]))

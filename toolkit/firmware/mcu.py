@@ -104,7 +104,9 @@ def worst_stack(ci_text: str, root: str = "evstab_step") -> tuple[int, tuple[str
     (a library function) counts 0 and is listed as external. A recursive chain, or a frame that is
     not ``static``, has no bound and raises :class:`McuError`.
     """
-    frames, edges, external = {}, {}, set()
+    frames: dict = {}
+    edges: dict = {}
+    external: set = set()
     for m in re.finditer(r'node: \{ title: "([^"]+)" label: "([^"]*)"', ci_text):
         title, label = m.groups()
         name = title.rsplit(":", 1)[-1]
@@ -196,7 +198,7 @@ def misra(source: Path, timeout: float = 900.0) -> Counter:
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     if out.returncode != 0:
         raise McuError(f"cppcheck failed ({out.returncode}): {out.stderr[-2000:]}")
-    rules = Counter()
+    rules: Counter = Counter()
     for line in out.stderr.splitlines():
         m = re.search(r":misra-c2012-(\d+\.\d+)$", line.strip())
         if m:

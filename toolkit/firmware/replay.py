@@ -8,7 +8,7 @@ Python loop over the numpy step is the reference (``backend="numpy"``). Like the
 filter runner, each sample takes the branch without the course update when it
 carries no fix.
 
-Log columns read (DESIGN.md schema): ``t``, ``speed``, ``steer``, ``yaw_rate``,
+Log columns read (the drive-log schema, docs/formats.md): ``t``, ``speed``, ``steer``, ``yaw_rate``,
 ``gps_course`` (required), ``ay``, ``yaw_moment``, ``gps_speed``, ``gps_hdop``,
 ``gps_sats`` (optional), and the ECU's own inputs when the log has them:
 ``steer_driver`` (driver's road-wheel angle command; default ``steer``),
@@ -45,13 +45,13 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = N
     """
     cols = log.columns if hasattr(log, "columns") else log
     get = lambda k: np.asarray(cols[k], float) if k in cols else None  # noqa: E731
-    t = get("t")
+    t = np.asarray(cols["t"], float)
     n = len(t)
     U = INPUTS.zeros(n)
     col = INPUTS.columns(U)  # views: writing them fills U
     col["dt"][0] = dt0 if n < 2 else t[1] - t[0]
     col["dt"][1:] = np.diff(t)
-    course = get("gps_course")
+    course = np.asarray(cols["gps_course"], float)
     fix = np.isfinite(course)
     col["speed"][:], col["steer"][:], col["yaw_rate"][:] = get("speed"), get("steer"), get("yaw_rate")
     col["gps_valid"][:] = fix
@@ -89,7 +89,8 @@ class EcuProgram:
         self.design = d
         self.cal = np.array([c.value for c in d.calibration()])
         self.backend = "numpy" if backend == "numpy" else "vm"
-        self._chunk = self._guard_chunk = None
+        self._chunk: ca.Function | None = None
+        self._guard_chunk: ca.Function | None = None
         self._c = self._gc = None
         if backend in ("auto", "c"):
             self._c = load_chunk_library(cache_key("ecu", d, CHUNK), lambda: self.chunk_fn, "ecu_chunk", required=backend == "c")

@@ -38,6 +38,8 @@ CODE_VERSION = "3"
 """Bump when generated code changes meaning (invalidates the compiled cache)."""
 CHUNK = 2000
 """Samples per compiled rollout call."""
+CASADI_VERSION = str(getattr(ca, "__version__"))
+"""The casadi that traced and printed a library: part of every compiled-cache key."""
 
 
 # ----------------------------------------------------------------- parameters
@@ -125,7 +127,7 @@ def source_digest() -> str:
 def cache_key(prefix: str, *parts) -> str:
     """Compiled-cache key: ``prefix`` plus a digest of ``parts`` (their repr), the casadi version
     and :func:`source_digest`."""
-    return prefix + "_" + hashlib.sha256(repr((parts, ca.__version__, source_digest())).encode()).hexdigest()[:20]
+    return prefix + "_" + hashlib.sha256(repr((parts, CASADI_VERSION, source_digest())).encode()).hexdigest()[:20]
 
 
 def with_fields(obj, **values):
@@ -411,7 +413,7 @@ class CompiledPlant:
                             ["x0", "cmd", "w", "p"], ["X", "Y"])
         src = source_digest()
         key = hashlib.sha256("|".join([CODE_VERSION, model.name, ",".join(names), repr(self.dt),
-                                       str(self.n_sub), ca.__version__, src]).encode()).hexdigest()[:20]
+                                       str(self.n_sub), CASADI_VERSION, src]).encode()).hexdigest()[:20]
         lib = compile_library([step, chunk], key) if compile else None
         self.symbolic_step, self._step_fn, self._chunk_fn = step, step, chunk
         if lib is not None:

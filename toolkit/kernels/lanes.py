@@ -428,7 +428,7 @@ class LaneRollout:
         n_cases = z0.shape[0]
         if z0.shape != (n_cases, self.sizes_in[0]):
             raise DataError(f"lane rollout: z0 must be (cases, {self.sizes_in[0]}), got {z0.shape}")
-        arrs = [None]
+        arrs: list = [None]
         strides = np.zeros(3 * self.n_in, dtype=np.int64)
         for i, a in enumerate(inputs, start=1):
             a = np.asarray(a, dtype=float)

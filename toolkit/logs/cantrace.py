@@ -70,12 +70,12 @@ def _frames(path: Path, ids: set) -> tuple[dict, float | None]:
     import can
     reader_cls = can.BLFReader if path.suffix.lower() == ".blf" else can.ASCReader
     frames: dict[int, list] = {i: [] for i in ids}
-    first = None
+    first: float | None = None
     count = 0
     blf = reader_cls is can.BLFReader
     try:
         with reader_cls(str(path)) as reader:
-            declared = reader.file_size if blf else None
+            declared = reader.file_size if isinstance(reader, can.BLFReader) else None
             for msg in reader:
                 count += 1
                 if first is None:
@@ -137,7 +137,7 @@ def can_channels(path, names, dbc) -> tuple[dict, list[str]]:
             raise LogFormatError(f"{path}: no frame of message '{m.name}' carries '{s.name}' (its multiplexer never "
                                  f"selects it)")
         out[n] = (ts, vals, s.unit or "")
-    return out, frame_gaps({m.frame_id: m for m, _ in wanted.values()}, frames, first)
+    return out, frame_gaps({m.frame_id: m for m, _ in wanted.values()}, frames, 0.0 if first is None else first)
 
 
 def frame_gaps(msgs: dict, frames: dict, first: float) -> list[str]:

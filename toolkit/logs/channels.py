@@ -282,7 +282,7 @@ def _mdf_channels(path: Path, names) -> dict:
         mdf = MDF(str(path))
     except Exception as exc:  # asammdf raises many kinds for a file that is not MDF
         raise LogFormatError(f"{path}: not a readable MDF file ({type(exc).__name__}: {exc})") from None
-    out = {}
+    out: dict[str, tuple | None] = {}
     try:
         for name in names:
             try:
@@ -311,7 +311,7 @@ def _mat_channels(path: Path, names) -> dict:
             data = {k: np.asarray(fh[k]) for k in fh.keys() if isinstance(fh[k], h5py.Dataset)}
     except Exception as exc:
         raise LogFormatError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
-    out = {}
+    out: dict[str, tuple | None] = {}
     for name in names:
         if name not in data:
             out[name] = None
@@ -328,7 +328,9 @@ def table_header(names: list[str], first_row: list[str]) -> list[str]:
     """Qualified names of a CSV header (see the module docstring): ``x``, ``y`` and ``z`` after a group
     column (one with no value in the first row) become ``group.x``, ...; a name still repeated gets
     ``#2``, ``#3`` in order."""
-    out, group, seen = [], None, {}
+    out: list[str] = []
+    group: str | None = None
+    seen: dict[str, int] = {}
     for k, raw in enumerate(names):
         n = raw.strip()
         value = first_row[k].strip() if k < len(first_row) else ""
@@ -372,7 +374,7 @@ def _csv_channels(path: Path, names) -> dict:
                              f"(truncated or malformed line)")
     qualified = table_header(header, rows[0] if rows else [])
     index = {n: k for k, n in enumerate(qualified)}
-    out = {}
+    out: dict[str, tuple | None] = {}
     for name in names:
         if name not in index:
             out[name] = None
@@ -414,7 +416,7 @@ def read_mapped(path, channel_map) -> DriveLog:
     wanted = sorted({n for spec in cmap["columns"].values() for n in spec["channels"]} |
                     {spec["fix_status"] for spec in cmap["columns"].values() if spec["fix_status"]} |
                     ({cmap["time"]} if cmap["time"] else set()))
-    notes = ()
+    notes: tuple | list = ()
     if kind == "can":
         from .cantrace import can_channels
         got, notes = can_channels(path, wanted, cmap.get("dbc"))
@@ -458,15 +460,16 @@ def read_mapped(path, channel_map) -> DriveLog:
         if spec["value"] is not None:
             continue
         ts = [stamps(n) for n in spec["channels"]]
-        vals = [got[n][1] for n in spec["channels"]]
-        if len(vals) > 1 and any(len(x) != len(vals[0]) or not np.array_equal(t, ts[0]) for x, t in zip(vals, ts)):
+        series = [got[n][1] for n in spec["channels"]]
+        if len(series) > 1 and any(len(x) != len(series[0]) or not np.array_equal(t, ts[0])
+                                   for x, t in zip(series, ts)):
             raise LogFormatError(f"{path}: the channels of '{col}' ({', '.join(spec['channels'])}) are not sampled "
                                  f"together; {'a velocity' if spec['velocity'] else 'averaging them'} needs one "
                                  f"time base")
         if spec["velocity"]:
-            sigs[col] = (ts[0], horizontal_velocity(col, spec["velocity"], *vals), spec)
+            sigs[col] = (ts[0], horizontal_velocity(col, spec["velocity"], *series), spec)
         else:
-            sigs[col] = (ts[0], np.mean(vals, axis=0) if len(vals) > 1 else vals[0], spec)
+            sigs[col] = (ts[0], np.mean(series, axis=0) if len(series) > 1 else series[0], spec)
     t, _, _ = sigs[cmap["time_base"]]
     _check_time(t, path, cmap["columns"][cmap["time_base"]]["channel"])
     span, trimmed = required_span(t, {col: sig for col, sig in sigs.items() if col in REQUIRED and col not in
@@ -529,7 +532,7 @@ def required_span(t: np.ndarray, sigs: dict, path) -> tuple[slice, tuple]:
     stop a few samples apart, and a required column is never extrapolated. A gap inside the span stays an
     error (:func:`read_mapped`)."""
     lo, hi = -math.inf, math.inf
-    first, last = None, None
+    first = last = ("", "")  # (column, channel) of the latest start and the earliest end
     for col, (ts, v, spec) in sigs.items():
         ok = np.flatnonzero(np.isfinite(v))
         if not len(ok):

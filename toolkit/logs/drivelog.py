@@ -1,4 +1,4 @@
-"""The drive-log CSV of ``DESIGN.md``: one writer and one reader for simulated and recorded runs.
+"""The drive-log CSV (docs/formats.md): one writer and one reader for simulated and recorded runs.
 
 The writer is atomic (temporary name in the target directory, renamed when
 complete). The reader rejects a bad file with a :class:`LogFormatError` naming the
@@ -91,8 +91,7 @@ def atomic_write(path: str | Path, write, mode: str = "w") -> None:
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; the result gets an ordinary file's mode
-        kw = {"newline": ""} if "b" not in mode else {}
-        with os.fdopen(fd, mode, **kw) as fh:
+        with os.fdopen(fd, mode, newline=None if "b" in mode else "") as fh:
             write(fh)
         os.replace(tmp, path)
     except BaseException:
@@ -386,7 +385,7 @@ def _read_strict(path: Path, required: tuple[str, ...] = REQUIRED) -> DriveLog:
             raise LogFormatError(f"{source}: row 1: missing required column '{c}'")
     known = {c for c, _, _ in SCHEMA} | set(TRUTH_COLUMNS)
     cols_in = [c for c in header if c]
-    values = {c: [] for c in cols_in}
+    values: dict[str, list] = {c: [] for c in cols_in}
     idx = {c: header.index(c) for c in cols_in}
     never_empty = {"t", "speed", "steer", "yaw_rate"}
     for row_no, row in enumerate(reader, start=2):

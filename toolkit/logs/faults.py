@@ -167,10 +167,10 @@ def nmea_time_backwards(lines: list[str], epoch_index: int, seconds: float = 1.0
             if epoch == epoch_index:
                 h, m, s = int(stamp[0:2]), int(stamp[2:4]), float(stamp[4:])
                 total = h * 3600 + m * 60 + s - seconds
-                h, rem = divmod(total, 3600)
-                m, s = divmod(rem, 60)
+                hours, rem = divmod(total, 3600)
+                minutes, s = divmod(rem, 60)
                 fields = list(msg.data)
-                fields[0] = f"{int(h):02d}{int(m):02d}{s:05.2f}"
+                fields[0] = f"{int(hours):02d}{int(minutes):02d}{s:05.2f}"
                 msg = type(msg)(msg.talker, kind, fields)
         out.append(str(msg))
     return out

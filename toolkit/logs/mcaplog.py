@@ -35,6 +35,7 @@ import io
 import json
 import re
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -142,6 +143,7 @@ def _messages(path: Path, topics: set):
             if channel.topic not in out:
                 continue
             enc = channel.message_encoding
+            decode: Callable | None
             if enc == "json":
                 decode = json.loads
             elif enc == "cdr" and schema is not None and schema.encoding == "ros2msg":

@@ -15,7 +15,7 @@ An epoch is one receiver time tag: ``RMC`` and ``GGA`` carry it, ``VTG``, ``GSA`
 when its course is known and nothing marks it invalid (RMC status ``V``, GGA quality
 0, GSA fix type 1); otherwise it is kept as an epoch without a course (NaN).
 
-Conventions (``DESIGN.md``): receivers report course clockwise from true north in
+Conventions (docs/models.md): receivers report course clockwise from true north in
 degrees; the schema's course is in the yaw sense (counter-clockwise from east, the
 simulator's x axis), so ``course = pi/2 - radians(cog)``, unwrapped over the fixes
 (continuous). The same for the heading. Speeds in m/s. Time: seconds from 00:00 UTC

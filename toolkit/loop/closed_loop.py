@@ -189,7 +189,7 @@ class LoopSpec:
         names = [f"plant.{s}" for s in model.states]
         ne, nc = self.ecu.sizes
         if ne:
-            f = self.ecu.ecu.filter
+            f = self.ecu.design.filter
             for s in kal_mod.layout(f).signals:
                 if s.name == "x":
                     names += [f"filter.{k}" for k in f.states]
@@ -278,7 +278,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "yaw_moment_limited": flags.yaw_moment_limited,
              "mu": case["mu_assumed"]}
         if radius is None:  # a plant without wheels: no rear wheel speeds, so no slip
-            g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.ecu.wheel_radius
+            g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.design.wheel_radius
         else:
             g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
         if spec.ecu_faults:
@@ -381,8 +381,8 @@ def _build(spec: LoopSpec, chunk: bool = True):
     z0, Uc = ca.MX.sym("z0", Z.shape[0]), ca.MX.sym("U", U.shape[0], CHUNK)
     pm, tm = ca.MX.sym("p", pv.shape[0]), ca.MX.sym("theta", th.shape[0])
     Zs, Ys, Es, Ms = acc(z0, Uc, ca.repmat(pm, 1, CHUNK), ca.repmat(tm, 1, CHUNK))
-    chunk = ca.Function("loop_chunk", [z0, Uc, pm, tm], [Zs[:, -1], Ys, Es, Ms])
-    return step, chunk, (Z, U, pv, th, Zn)
+    chunk_fn = ca.Function("loop_chunk", [z0, Uc, pm, tm], [Zs[:, -1], Ys, Es, Ms])
+    return step, chunk_fn, (Z, U, pv, th, Zn)
 
 
 LANE_ROLES = lanes_mod.Roles(stepped=(1,))

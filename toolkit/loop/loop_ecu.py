@@ -65,11 +65,18 @@ class LoopEcu:
         return self.kind in ("two-dof", "none", "yaw-pi")
 
     @property
+    def design(self) -> EcuDesign:
+        """The ECU design every kind but ``driver`` runs."""
+        if self.ecu is None:
+            raise LoopError(f"the '{self.kind}' ECU runs no ECU design")
+        return self.ecu
+
+    @property
     def sizes(self) -> tuple[int, int]:
         """(filter state, controller state) sizes; the controller's part ends with the input guard's state."""
         if self.kind == "driver":
             return 0, 0
-        ne = self.ecu.layout.index("controller") if self.has_filter else 0
+        ne = self.design.layout.index("controller") if self.has_filter else 0
         nc = len(YAW_PI_STATE) if self.kind == "yaw-pi" else len(ctl_mod.STATE) + len(sup_mod.STATE)
         return ne, nc + guard_mod.STATE.size
 
@@ -108,7 +115,7 @@ class LoopEcu:
             return np.zeros(0)
         parts = []
         if ne:
-            parts.append(kal_mod.initial_state(self.ecu.filter, 0.0, 0.0))
+            parts.append(kal_mod.initial_state(self.design.filter, 0.0, 0.0))
         if self.kind == "yaw-pi":
             parts.append(np.zeros(nc - guard_mod.STATE.size))
         else:
@@ -118,7 +125,7 @@ class LoopEcu:
 
     def _bound(self, cal) -> EcuDesign:
         """The ECU design with calibration values ``cal`` (numbers or symbols)."""
-        return self.ecu.bind([cal[i] for i in range(len(self.calibration_names()))])
+        return self.design.bind([cal[i] for i in range(len(self.calibration_names()))])
 
     def step(self, z, u, truth: dict, cal, o=NUMPY):
         """``(z, u) -> (z_next, y)`` with ``u`` per the ECU's inputs and ``y`` per its outputs;

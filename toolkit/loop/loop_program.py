@@ -47,7 +47,7 @@ class LoopProgram:
         self.sizes = spec.sizes
         self.names = spec.fields
         self.nin = n_inputs()
-        self._jac = None
+        self._jac: tuple | None = None
         # shared with the with_spec copies, so that one build serves them all
         self._lazy = SimpleNamespace(trace=None, compiled=False, lanes=None, kernels={}, lane_step=None, cf=None,
                                      cstep=None, compile=compile, use_lanes=lanes)

@@ -65,7 +65,7 @@ class SimResult:
         raise KeyError(f"no signal '{name}' in this result")
 
     def log_columns(self) -> dict:
-        """Drive-log columns (DESIGN.md schema): sensor readings plus ``*_true`` truth."""
+        """Drive-log columns (the drive-log schema, docs/formats.md): sensor readings plus ``*_true`` truth."""
         cols = {"t": self.t}
         cols.update(self.measurements)
         truth = self.truth
