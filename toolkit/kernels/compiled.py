@@ -111,14 +111,14 @@ def build_step(model: PlantModel, p: VehicleParams, dt: float, n_sub: int):
 
 @lru_cache(maxsize=1)
 def source_digest() -> str:
-    """Digest of evstab's own source, every module of ``plants``, ``controllers`` and
+    """Digest of evstab's own source, every module and C file of ``plants``, ``controllers`` and
     ``toolkit``: part of every compiled-cache key, so a code change can never reuse a stale
     library. (Per-module lists went stale: a traced graph reaches into modules its key did
     not name, and a changed filter once reused an old tuning library.)"""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parents[2]  # toolkit/kernels/compiled.py: the folder of plants, controllers, toolkit
     for pkg in ("plants", "controllers", "toolkit"):
-        for f in sorted((root / pkg).rglob("*.py")):
+        for f in sorted(g for ext in ("*.py", "*.c", "*.h") for g in (root / pkg).rglob(ext)):
             h.update(f.relative_to(root).as_posix().encode())
             h.update(f.read_bytes())
     return h.hexdigest()[:16]

@@ -38,7 +38,7 @@ from evstab.plants.backend import LANE_INTRINSICS
 from evstab.plants.errors import CompileError, DataError
 
 from .compiled import compile_source, compiler, shared
-from .lane_math import BINARY, MATH_C, UNARY
+from .lane_math import BINARY, UNARY, math_c
 
 WIDTH = 4
 """Lanes per vector where nothing better is known (and of the tuning's large forward-mode kernel):
@@ -332,7 +332,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
         body.append(f"  for (int l = 0; l < n_act; l++) for (int e = 0; e < {m}; e++) wp{dst}[l][e] = ob[e][l];")
         body.append("}")
 
-    lines = [MATH_C % {"width": width}, *(LANE_INTRINSICS[u] for u in sorted(used)),
+    lines = [math_c(width), *(LANE_INTRINSICS[u] for u in sorted(used)),
              f"int {fname}(long n_steps, long n_cases, const double* z0, const double* const* in, double* z_end, "
              f"double* const* out, const long* st) {{",
              *(f"  const long cs{i} = st[{3 * i}], ks{i} = st[{3 * i + 1}], es{i} = st[{3 * i + 2}];"
@@ -370,7 +370,7 @@ def rollout_source(fn: ca.Function, fname: str, roles: Roles, width: int = WIDTH
 def math_source(width: int = WIDTH) -> str:
     """C source of the vector math functions alone, with ``void ev_math_NAME(long n, const double* x,
     double* y)`` wrappers (``NAME`` sin, cos, atan, exp, tanh) for testing them against libm."""
-    out = [MATH_C % {"width": width}]
+    out = [math_c(width)]
     for f in ("sin", "cos", "atan", "exp", "tanh"):
         out.append(f"void ev_math_{f}(long n, const double* x, double* y) {{\n"
                    f"  for (long i = 0; i < n; i += EV_W) {{\n"
