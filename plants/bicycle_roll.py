@@ -30,8 +30,7 @@ def _lateral(x, u, w, p: VehicleParams):
     vx = o.fmax(c.vx, V_MIN)
     fyf, fyr = tire_forces(s.beta, s.yaw_rate, c.steer, vx, p)
     fy = fyf + fyr + d.lateral_force - p.mass * G * o.sin(d.bank)
-    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia",
-                                 model="the bicycle with roll")
+    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia")
     msh = ms * hs
     # Solve [M, -msh; -msh, I_x] [a_y; phi''] = [F_y; M_roll] in closed form.
     m_roll = -cx * s.roll_rate - kx * s.roll + d.roll_moment_dist

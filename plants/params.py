@@ -373,12 +373,9 @@ def load_vehicle(name_or_path: str | Path) -> VehicleParams:
     return parse_vehicle_toml(text, str(path))
 
 
-def known(p, *names: str, model: str = "this model") -> tuple[float, ...]:
-    """The values of the optional fields ``names`` of the parameters ``p`` that ``model`` needs: floats, or a
-    trace's symbols where ``p`` is a :func:`toolkit.kernels.compiled.symbolic_view`. An unset one is a
-    :class:`ParameterError` naming it (as :meth:`VehicleParams.require`)."""
-    missing = [n for n in names if getattr(p, n) is None]
-    if missing:
-        raise ParameterError(f"{getattr(p, 'name', 'vehicle')}: {model} needs vehicle parameter(s) "
-                             f"{', '.join(missing)}; add them to the [vehicle] table")
+def known(p, *names: str) -> tuple[float, ...]:
+    """The values of the optional fields ``names`` of the parameters ``p`` that a plant model needs (floats,
+    or a trace's symbols where ``p`` is a :func:`toolkit.kernels.compiled.symbolic_view`). Unchecked here: the
+    plant's ``required_params`` are checked once, by :meth:`plants.model.PlantModel.check_params`, not on every
+    evaluation of its right-hand side."""
     return tuple(getattr(p, n) for n in names)

@@ -57,7 +57,7 @@ SPEED_GAIN = 2.0
 
 def wheel_geometry(p: VehicleParams):
     """Contact-point coordinates (x_i, y_i) [m] of FL, FR, RL, RR relative to the CG."""
-    t_f, t_r = known(p, "track_front", "track_rear", model="the two-track")
+    t_f, t_r = known(p, "track_front", "track_rear")
     tf, tr = t_f / 2.0, t_r / 2.0
     return (p.lf, p.lf, -p.lr, -p.lr), (tf, -tf, tr, -tr)
 
@@ -66,7 +66,7 @@ def _forces(x, u, w, p: VehicleParams):
     o = ops_for(x, u, w)
     s, c, d = unpack(x, STATES), unpack(u, INPUTS), unpack(w, DISTURBANCES)
     L = p.wheelbase
-    h, R, t_f, t_r = known(p, "cg_height", "wheel_radius", "track_front", "track_rear", model="the two-track")
+    h, R, t_f, t_r = known(p, "cg_height", "wheel_radius", "track_front", "track_rear")
     xs, ys = wheel_geometry(p)
     share = 0.5 if p.roll_stiffness_front_share is None else p.roll_stiffness_front_share
     fz0 = (p.mass * G * p.lr / L / 2.0, p.mass * G * p.lr / L / 2.0,
@@ -110,8 +110,7 @@ def _forces(x, u, w, p: VehicleParams):
 
 def _accelerations(x, u, w, p: VehicleParams):
     o, s, c, d, fz, fxw, fx, fy, mz = _forces(x, u, w, p)
-    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia",
-                                 model="the two-track")
+    ms, hs, kx, cx, ix = known(p, "sprung_mass", "roll_arm", "roll_stiffness", "roll_damping", "roll_inertia")
     msh = ms * hs
     m_roll = (-kx * s.roll - cx * s.roll_rate
               + ms * G * hs * o.sin(s.roll) + d.roll_moment_dist)
@@ -184,7 +183,7 @@ def initial(p: VehicleParams, speed: float):
     x0 = np.zeros(len(STATES))
     x0[STATES.index("vx")] = speed
     for name in ("omega_fl", "omega_fr", "omega_rl", "omega_rr"):
-        x0[STATES.index(name)] = speed / known(p, "wheel_radius", model="the two-track")[0]
+        x0[STATES.index(name)] = speed / known(p, "wheel_radius")[0]
     return x0
 
 
@@ -194,7 +193,7 @@ def max_stable_step(p: VehicleParams) -> float:
     The wheel-spin eigenvalue is about ``-C_kappa R^2 / (I_w V_LOW)``; RK4 is stable
     on the negative real axis up to ``|lambda h| = 2.78``; 2.0 keeps a margin.
     """
-    c_kappa, r_w, i_w = known(p, "longitudinal_stiffness", "wheel_radius", "wheel_inertia", model="the two-track")
+    c_kappa, r_w, i_w = known(p, "longitudinal_stiffness", "wheel_radius", "wheel_inertia")
     lam = c_kappa * r_w**2 / (i_w * V_LOW)
     return 2.0 / lam if lam > 0 else math.inf
 

@@ -222,10 +222,9 @@ def speed_dropout(t, speed, s: MonitorSettings, ax=None, gps_speed=None, window:
     while len(starts):
         k = int(starts[0])
         # the substitute: the last reading before the dropout (or the GPS speed), then ax-integrated
-        if k > 0 and fall[k]:
+        if fall[k] or g_all is None:  # fall[0] is never set; without a GPS speed every start is a fall
             v0 = float(speed[k - 1])
         else:
-            assert g_all is not None  # a start that is not a fall is the GPS speed's
             v0 = float(g_all[k])
         end = _dropout_end(k, v0, speed, dt, acc, g_all, s, flag, v, window)
         starts = starts[starts >= max(end, k + 1)]

@@ -31,7 +31,6 @@ decode with its schema; header stamps that are all zero.
 
 from __future__ import annotations
 
-import io
 import json
 import re
 from pathlib import Path
@@ -129,35 +128,38 @@ def _messages(path: Path, topics: set):
     seen: dict[str, str] = {}
     count = 0
     try:
-        data = path.read_bytes()
+        fh = open(path, "rb")
     except OSError as e:
         raise LogFormatError(f"{path}: cannot read: {e.strerror or e}") from None
-    if not data.startswith(MAGIC):
-        raise LogFormatError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
-    reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True, record_size_limit=len(data) + 1)
-    try:
-        for schema, channel, msg in reader.iter_messages(log_time_order=False):
-            count += 1
-            name = schema.name if schema is not None else "(no schema)"
-            seen.setdefault(channel.topic, name)
-            if channel.topic not in out:
-                continue
-            enc = channel.message_encoding
-            decode: Callable | None
-            if enc == "json":
-                decode = json.loads
-            elif enc == "cdr" and schema is not None and schema.encoding == "ros2msg":
-                decode = factory.decoder_for(enc, schema)
-            else:
-                raise LogFormatError(f"{path}: topic '{channel.topic}' is in message encoding '{enc}' (schema "
-                                     f"encoding '{schema.encoding if schema else 'none'}'): evstab reads ROS 2 CDR "
-                                     f"(ros2msg schemas) and JSON")
-            out[channel.topic].append((msg.log_time, msg.data, name, decode))
-    except LogFormatError:
-        raise
-    except Exception as e:  # a cut-off or damaged file: McapError, and struct, zstd and lz4 errors
-        raise LogFormatError(f"{path}: the file cannot be read past its message {count} ({type(e).__name__}: {e}); "
-                             f"a recording cut off can be recovered with 'mcap recover'") from None
+    with fh:
+        if fh.read(len(MAGIC)) != MAGIC:
+            raise LogFormatError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        fh.seek(0)
+        # streamed, never the whole file in memory; no record can be longer than the file
+        reader = NonSeekingReader(fh, validate_crcs=True, record_size_limit=path.stat().st_size + 1)
+        try:
+            for schema, channel, msg in reader.iter_messages(log_time_order=False):
+                count += 1
+                name = schema.name if schema is not None else "(no schema)"
+                seen.setdefault(channel.topic, name)
+                if channel.topic not in out:
+                    continue
+                enc = channel.message_encoding
+                decode: Callable | None
+                if enc == "json":
+                    decode = json.loads
+                elif enc == "cdr" and schema is not None and schema.encoding == "ros2msg":
+                    decode = factory.decoder_for(enc, schema)
+                else:
+                    raise LogFormatError(f"{path}: topic '{channel.topic}' is in message encoding '{enc}' (schema "
+                                         f"encoding '{schema.encoding if schema else 'none'}'): evstab reads ROS 2 "
+                                         f"CDR (ros2msg schemas) and JSON")
+                out[channel.topic].append((msg.log_time, msg.data, name, decode))
+        except LogFormatError:
+            raise
+        except Exception as e:  # a cut-off or damaged file: McapError, and struct, zstd and lz4 errors
+            raise LogFormatError(f"{path}: the file cannot be read past its message {count} ({type(e).__name__}: "
+                                 f"{e}); a recording cut off can be recovered with 'mcap recover'") from None
     return out, seen, count
 
 
