@@ -36,4 +36,4 @@ def yaw_pi_law(d: TwoDofDesign, z, sig, o=NUMPY, gains: tuple[float, float] = YA
     low = s.speed < d.min_speed
     xi = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, xi0, xi0 + d.dt * e))
     return STATE.pack(o=o, xi_yaw_rate=xi), OUTPUTS.pack(o=o, steer=s.steer_driver, yaw_moment=o.if_else(low, 0.0, nz),
-                                                         beta_ref=beta_ss, yaw_rate_ref=gamma_ss)
+                                                         beta_ref=beta_ss, yaw_rate_ref=gamma_ss, yaw_rate_error=e)

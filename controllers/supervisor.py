@@ -17,8 +17,9 @@ the model-following law of seed 003 acts only when the car needs it.
   reference model's friction limit (seed 003 eq. 23-24 with ``|r_ref| <= k mu g / v``) uses
   ``min(mu_est, mu input)``; the ``mu`` input is an optional road sensor (``mu_max`` when there is
   none). Friction use ``|a_y| / (mu_est g)`` shrinks the dead bands below.
-* **Activation with hysteresis** (:func:`supervise`). Active when the yaw-rate error against the
-  (friction-limited, lagged) reference exceeds ``(yaw_rate_deadband + yaw_rate_deadband_per_speed
+* **Activation with hysteresis** (:func:`supervise`). Active when the yaw-rate error (the law's: to the
+  band between the linear car and the lagged static reference, both friction-limited; see
+  :mod:`controllers.two_dof`) exceeds ``(yaw_rate_deadband + yaw_rate_deadband_per_speed
   v) (1 - deadband_shrink use)``, or the estimated sideslip exceeds ``beta_threshold`` (only when the
   estimate is trustworthy: ``beta_std < beta_std_max``); inactive again once both are below
   ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out

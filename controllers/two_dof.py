@@ -20,8 +20,25 @@ stability is checked (:mod:`controllers.stability`).
 The static reference of seed 003 eq. 23 jumps with the steer (and with the
 friction limit); inverting the plant against a jump asks for an impulse. The
 reference therefore passes through a first-order lag of time constant
-``reference_tau`` (the car's own yaw response is of that order), whose derivative
-``(x_ss - x_d) / tau`` is known exactly: that is the ``x_d'`` the feed-forward uses.
+``reference_tau``, whose derivative ``(x_ss - x_d) / tau`` is known exactly: that is
+the ``x_d'`` the feed-forward uses (``reference_model="static"``, the paper's).
+
+A car's own yaw response is not a first-order lag: at a quick turn-in it lags the lagged
+reference and then overshoots it, and a law that tracks that reference fights the driver
+in a swerve the car drives through alone. The default reference
+(``reference_model="linear"``) is therefore the nominal linear car itself, driven by the
+driver's steer, ``x_l' = A x_l + B (delta_driver, 0)``, its yaw rate held within the same
+friction and rollover limit (approached through the lag when the limit binds). Where the
+limit does not bind its feed-forward is exactly the driver's steer and no yaw moment. The
+error the supervised law acts on is the distance to the band between the linear car and
+the lagged static reference (0 while the estimate lies between them: a car whose tyres are
+softer than the nominal's responds more slowly than the linear car but reaches the same
+steady state). Where the driver's linear demand exceeds the rollover limit by
+``limit_demand_lo`` to ``limit_demand_hi`` times (the ``limit_share`` signal, 0 to 1), the
+reference and the band move to the lagged static reference: a high car needs the law early,
+before the transient's overshoot of lateral acceleration tips it. With ``always_active``
+(the paper's controller and the stability analysis) there is no band: the error is the
+reference minus the estimate.
 
 Discrete realisation at the control period ``dt``: the integrator and the
 reference lag by zero-order hold (``xi[k+1] = xi[k] + dt e[k]``, exact for a held
@@ -48,6 +65,8 @@ if TYPE_CHECKING:
 
 
 
+REFERENCE_MODELS = ("linear", "static")
+"""The law's reference models (:attr:`TwoDofDesign.reference_model`)."""
 STEER_AUTHORITY = float(np.deg2rad(20.0))
 """Default steer authority [rad road wheel] where the vehicle file gives none."""
 STEER_AUTHORITY_RATE = float(np.deg2rad(100.0))
@@ -66,6 +85,14 @@ class TwoDofDesign:
     dt: float = 1e-3
     reference_tau: float = 0.1
     """Time constant [s] of the lag applied to the static reference (see the module notes)."""
+    reference_model: str = "linear"
+    """``linear``: the nominal linear car driven by the driver's steer, with the band to the lagged static
+    reference; ``static``: seed 003's static reference through the lag (see the module notes)."""
+    limit_demand_lo: float = 1.2
+    """Driver's linear lateral-acceleration demand, as a multiple of the rollover limit
+    (:attr:`ay_limit`), from which the reference moves towards the lagged static one ..."""
+    limit_demand_hi: float = 1.5
+    """... and at which it is the lagged static one."""
     min_speed: float = 3.0
     """Below this speed [m/s] the controller passes the driver's steer through and makes no yaw moment."""
     friction_margin: float = 0.85
@@ -189,6 +216,12 @@ class TwoDofDesign:
                      "slip_cut_time", "slip_recover_time", "slip_lead_time"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if self.reference_model not in REFERENCE_MODELS:
+            raise DesignError(f"controller setting 'reference_model' must be one of {', '.join(REFERENCE_MODELS)}, "
+                              f"got {self.reference_model!r}")
+        if not self.limit_demand_hi > self.limit_demand_lo:
+            raise DesignError(f"controller settings need limit_demand_hi > limit_demand_lo, got "
+                              f"{self.limit_demand_hi!r}, {self.limit_demand_lo!r}")
         if not 0 <= self.slip_onset < 1:
             raise DesignError(f"controller setting 'slip_onset' must be in [0, 1), got {self.slip_onset!r}")
         if not 0 < self.mu_min <= self.mu_max:
@@ -230,8 +263,11 @@ STATE = Layout("controller state", [
     Signal("yaw_rate_ref", "rad/s", "the lagged yaw-rate reference"),
     Signal("dist_beta", "rad/s", "the low-passed disturbance estimate d1"),
     Signal("dist_yaw_rate", "rad/s^2", "the low-passed disturbance estimate d2"),
+    Signal("beta_linear", "rad", "sideslip of the nominal linear car driven by the driver's steer"),
+    Signal("yaw_rate_linear", "rad/s", "yaw rate of that car, within the friction limit"),
 ])
-"""Controller state: error integrals, the lagged reference, the low-passed disturbance estimates."""
+"""Controller state: error integrals, the lagged static reference, the low-passed disturbance estimates, the
+linear car (reference_model ``linear``; with ``static`` it equals the lagged reference)."""
 SIGNALS = Layout("controller signals", [
     Signal("speed", "m/s", "vehicle speed"),
     Signal("steer_driver", "rad", "the driver's road-wheel angle"),
@@ -242,12 +278,14 @@ SIGNALS = Layout("controller signals", [
     Signal("mu", "-", "friction the reference is limited with"),
     Signal("steer_limited", "-", "1 while the steer command was limited"),
     Signal("yaw_moment_limited", "-", "1 while the yaw moment was limited"),
+    Signal("limit_share", "-", "0: the reference is the linear car, 1: the lagged static one (between: a blend)"),
 ])
 OUTPUTS = Layout("controller outputs", [
     Signal("steer", "rad", "front road-wheel angle command"),
     Signal("yaw_moment", "N m", "direct yaw moment command"),
     Signal("beta_ref", "rad", "sideslip reference"),
     Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
+    Signal("yaw_rate_error", "rad/s", "the yaw-rate error the law acts on (0 inside the reference band)"),
 ])
 
 
@@ -264,13 +302,36 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     vm = o.fmax(v, d.min_speed)
     beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22) = reference(d, vm, s.steer_driver, s.mu, o)
     lag = float(np.exp(-d.dt / d.reference_tau))
-    xb, xr = zs.beta_ref, zs.yaw_rate_ref
-    xb_dot, xr_dot = (beta_ss - xb) / d.reference_tau, (gamma_ss - xr) / d.reference_tau
-    xb_next, xr_next = beta_ss + (xb - beta_ss) * lag, gamma_ss + (xr - gamma_ss) * lag
-    # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d)
-    e_b = o.fmin(o.fmax(xb - s.beta, -d.beta_error_max), d.beta_error_max) if np.isfinite(d.beta_error_max) \
-        else xb - s.beta
-    e_r = xr - s.yaw_rate
+    # the lagged static reference (seed 003 eq. 23 through the lag)
+    sb, sr = zs.beta_ref, zs.yaw_rate_ref
+    sb_next, sr_next = beta_ss + (sb - beta_ss) * lag, gamma_ss + (sr - gamma_ss) * lag
+    if d.reference_model == "linear":
+        # the nominal linear car on the driver's steer (explicit Euler at the control period); where its yaw
+        # rate would pass the limit it goes through the lag to the limited static reference instead (a steady
+        # state of the linear car, for the steer that the limit allows)
+        lb, lr = zs.beta_linear, zs.yaw_rate_linear
+        ub = lb + d.dt * (a11 * lb + a12 * lr + b11 * s.steer_driver)
+        ur = lr + d.dt * (a21 * lb + a22 * lr + b21 * s.steer_driver)
+        over = o.fabs(ur) > o.fmin(d.friction_margin * s.mu * G, d.ay_limit) / vm
+        lb_next = o.if_else(over, beta_ss + (lb - beta_ss) * lag, ub)
+        lr_next = o.if_else(over, gamma_ss + (lr - gamma_ss) * lag, ur)
+        w = o.fmin(o.fmax(s.limit_share, 0.0), 1.0)
+    else:
+        lb, lr, lb_next, lr_next, w = sb, sr, sb_next, sr_next, 1.0
+    # the reference: the linear car, moved by limit_share towards the lagged static reference; its derivative
+    # from the two parts' own (the lag's exactly, the linear car's over the period)
+    xb, xr = lb + w * (sb - lb), lr + w * (sr - lr)
+    xb_dot = (1.0 - w) * (lb_next - lb) / d.dt + w * (beta_ss - sb) / d.reference_tau
+    xr_dot = (1.0 - w) * (lr_next - lr) / d.dt + w * (gamma_ss - sr) / d.reference_tau
+    # the law u = B^-1 (x_d' - A x_d + Kd e - A Kd xi - d); supervised, e is the distance to the band between
+    # the reference and the lagged static reference (0 inside it); always active (no band) x_d - x
+    if d.always_active:
+        e_b, e_r = xb - s.beta, xr - s.yaw_rate
+    else:
+        e_b = o.fmin(o.fmax(s.beta, o.fmin(xb, sb)), o.fmax(xb, sb)) - s.beta
+        e_r = o.fmin(o.fmax(s.yaw_rate, o.fmin(xr, sr)), o.fmax(xr, sr)) - s.yaw_rate
+    if np.isfinite(d.beta_error_max):
+        e_b = o.fmin(o.fmax(e_b, -d.beta_error_max), d.beta_error_max)
     if d.disturbance_rejection:
         if d.disturbance_filter_tau > 0:
             k = 1.0 - float(np.exp(-d.dt / d.disturbance_filter_tau))
@@ -295,9 +356,10 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     # conditional integration: hold xi in a channel whose command is limited; reset at low speed
     xi_b_next = o.if_else(low, 0.0, o.if_else(s.steer_limited > 0.5, xi_b, xi_b + d.dt * e_b))
     xi_r_next = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, xi_r, xi_r + d.dt * e_r))
-    z_next = STATE.pack(o=o, xi_beta=xi_b_next, xi_yaw_rate=xi_r_next, beta_ref=xb_next, yaw_rate_ref=xr_next,
-                        dist_beta=o.if_else(low, 0.0, dist_b), dist_yaw_rate=o.if_else(low, 0.0, dist_r))
-    return z_next, OUTPUTS.pack(o=o, steer=delta, yaw_moment=nz, beta_ref=xb, yaw_rate_ref=xr)
+    z_next = STATE.pack(o=o, xi_beta=xi_b_next, xi_yaw_rate=xi_r_next, beta_ref=sb_next, yaw_rate_ref=sr_next,
+                        dist_beta=o.if_else(low, 0.0, dist_b), dist_yaw_rate=o.if_else(low, 0.0, dist_r),
+                        beta_linear=lb_next, yaw_rate_linear=lr_next)
+    return z_next, OUTPUTS.pack(o=o, steer=delta, yaw_moment=nz, beta_ref=xb, yaw_rate_ref=xr, yaw_rate_error=e_r)
 
 
 def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = True):

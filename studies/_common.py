@@ -82,7 +82,7 @@ def cli(main) -> None:
 
 def seed_003_design(p):
     """Seed 003's controller as the paper runs it: the 2-DOF law always acting above its minimum speed
-    (no dead bands), K_beta = K_gamma = 5, with the steer's full range and the motors' torque limit
+    (no dead bands), K_beta = K_gamma = 5, its static reference through the lag, with the steer's full range and the motors' torque limit
     only (no superposition limit, no rear-grip limit on the yaw moment, no yaw guard, no rollover
     limit or lateral-acceleration cap on the reference, no slip control, no sideslip phase-plane guard;
     the friction estimate still runs,
@@ -91,4 +91,4 @@ def seed_003_design(p):
     from evstab.controllers.two_dof import TwoDofDesign
     return TwoDofDesign(p.as_nominal(), always_active=True, steer_authority=np.deg2rad(35.0), guard_share=1e6,
                         rear_grip_share=1e6, rollover_share=1e6, ay_headroom=1e6, slip_max=1e6,
-                        phase_beta=1e9)
+                        phase_beta=1e9, reference_model="static")

@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 
+from evstab.controllers.two_dof import REFERENCE_MODELS
 from evstab.plants import bundled_vehicles, is_multibody, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.errors import EvstabError
@@ -431,6 +432,7 @@ def cmd_fmvss126(args) -> int:
     else:
         design = TwoDofDesign(p.as_nominal(), k_beta=args.k_beta, k_gamma=args.k_gamma,
                               yaw_priority=args.yaw_priority, reference_tau=args.reference_tau,
+                              reference_model=args.reference_model,
                               friction_margin=args.friction_margin, disturbance_filter_tau=args.disturbance_filter)
         estimator = args.estimator or "dakf"
     a_deg, rows, verdict = run_series(p, args.controller, estimator, args.mu, plant=args.plant,
@@ -633,6 +635,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--k-gamma", type=_positive, default=5.0, help="model-following pole for yaw rate [rad/s]")
     sp.add_argument("--yaw-priority", type=_positive, default=4.0, help="yaw weight when a command saturates")
     sp.add_argument("--reference-tau", type=_positive, default=0.1, help="reference lag [s]")
+    sp.add_argument("--reference-model", choices=REFERENCE_MODELS, default="linear",
+                    help="the law's reference: the nominal linear car (default) or seed 003's static reference "
+                         "through the lag")
     sp.add_argument("--friction-margin", type=_positive, default=0.85, help="yaw-rate reference limit, share of mu g / v")
     sp.add_argument("--disturbance-filter", type=_nonneg, default=0.0, help="low-pass on the disturbance estimates [s]")
     sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from evstab.controllers.actuators import ActuatorLimits, actuator_law
-from evstab.controllers.two_dof import TwoDofDesign, allocate as allocate_commands, control_law, reference
+from evstab.controllers.two_dof import (OUTPUTS, SIGNALS, STATE, TwoDofDesign, allocate as allocate_commands,
+                                        control_law, reference)
+from evstab.plants.errors import DesignError
 from evstab.plants import G, load_vehicle
 from evstab.plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
 from evstab.toolkit.design.stability import nominal_loop
@@ -95,20 +97,95 @@ def test_allocation_meets_torque_limits():
 
 
 def test_controller_tracks_on_the_nominal_bicycle():
-    # discrete controller on the exact linear plant: the error decays with the model-following pole
+    # discrete controller (seed 003's static reference) on the exact linear plant: the error decays with the
+    # model-following pole
     p = load_vehicle("compact-ev")
-    d = TwoDofDesign(p, k_beta=5.0, k_gamma=5.0)
+    d = TwoDofDesign(p, k_beta=5.0, k_gamma=5.0, reference_model="static")
     A, B = lateral_matrices(p, 20.0)
     x = np.zeros(2)
-    st = np.zeros(6)
+    st = np.zeros(len(STATE))
     xd = np.array(reference(d, 20.0, 0.02, p.mu)[:2])
     errs = []
     for k in range(3000):
-        st, out = control_law(d, st, np.array([20.0, 0.02, x[0], x[1], 0.0, 0.0, p.mu, 0.0, 0.0]))
+        st, out = control_law(d, st, np.array([20.0, 0.02, x[0], x[1], 0.0, 0.0, p.mu, 0.0, 0.0, 0.0]))
         u = np.array([out[0], out[1]])
         x = x + 1e-3 * (A @ x + B @ u)
         errs.append(np.abs(x - xd).max())
     assert errs[-1] < 1e-4 * np.abs(xd).max() + 1e-9  # exp(-5 * 3 s) ~ 3e-7 of the step
+
+
+def _law_run(d, p, v, steer, n, mu=1.0, share=0.0):
+    """The law on the exact Euler-discretised linear plant from rest, the driver's steer ``steer`` held:
+    the commands, the plant's states and the law's states, per period."""
+    A, B = lateral_matrices(p, v)
+    x, st = np.zeros(2), np.zeros(len(STATE))
+    outs, xs, sts = [], [], []
+    for _ in range(n):
+        sig = SIGNALS.pack(speed=v, steer_driver=steer, beta=x[0], yaw_rate=x[1], d1=0.0, d2=0.0, mu=mu,
+                           steer_limited=0.0, yaw_moment_limited=0.0, limit_share=share)
+        st, out = control_law(d, st, sig)
+        x = x + d.dt * (A @ x + B @ out[:2])
+        outs.append(out), xs.append(x.copy()), sts.append(st)
+    return np.array(outs), np.array(xs), np.array(sts)
+
+
+def test_linear_reference_passes_the_driver_through_on_the_nominal_car():
+    # The linear car is the reference: on the nominal car (the same Euler step as the law's reference) its
+    # feed-forward is exactly the driver's steer and no yaw moment, and the car follows it with no error, so
+    # the law adds nothing in a transient the static reference's lag would fight (two-track slalom and
+    # ISO 3888-2, docs/controller.md)
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p)
+    assert d.reference_model == "linear"
+    steer = 0.01  # 4.3 m/s^2 at 20 m/s in steady state: inside the friction limit
+    out, x, st = _law_run(d, p, 20.0, steer, 2000)
+    o = OUTPUTS.index("steer"), OUTPUTS.index("yaw_moment"), OUTPUTS.index("yaw_rate_error")
+    # rounding of the inverse B^-1 (x_l' - A x_l) against the Euler step: relative 1e-9 of the steer
+    np.testing.assert_allclose(out[:, o[0]], steer, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(out[:, o[1]], 0.0, atol=1e-6)  # N m, against moments of ~1e3
+    np.testing.assert_allclose(out[:, o[2]], 0.0, atol=1e-12)
+    # it ends in the linear car's own steady state (seed 003 eq. 23), which the static reference also asks for
+    kb, kg = steady_state_gains(p, 20.0)
+    assert x[-1, 1] == pytest.approx(kg * steer, rel=1e-6)  # 2 s: the plant's poles (~ -10/s) have settled
+    assert st[-1, STATE.index("yaw_rate_ref")] == pytest.approx(kg * steer, rel=1e-6)
+
+
+def test_linear_reference_holds_the_friction_limit():
+    # driver's demand far beyond mu 0.3: the linear car's yaw rate settles at friction_margin mu g / v, as seed
+    # 003's limited static reference does
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p)
+    v, mu = 20.0, 0.3
+    _, _, st = _law_run(d, p, v, 0.05, 2000, mu=mu)
+    limit = d.friction_margin * mu * G / v
+    assert abs(st[-1, STATE.index("yaw_rate_linear")]) == pytest.approx(limit, rel=1e-9)
+    assert st[-1, STATE.index("yaw_rate_linear")] == pytest.approx(st[-1, STATE.index("yaw_rate_ref")], rel=1e-6)
+
+
+@pytest.mark.parametrize("r,expected", [(0.15, 0.0), (0.1, 0.0), (0.2, 0.0), (0.25, -0.05), (0.05, 0.05),
+                                        (-0.1, 0.2)])
+def test_the_supervised_law_acts_on_the_distance_to_the_reference_band(r, expected):
+    # linear car 0.2 rad/s, lagged static reference 0.1 rad/s: a yaw rate between them (the edges included) is
+    # no error; beyond, the error is to the nearer edge; always active (the paper's law) it is to the reference
+    p = load_vehicle("compact-ev")
+    st = STATE.pack(xi_beta=0.0, xi_yaw_rate=0.0, beta_ref=0.0, yaw_rate_ref=0.1, dist_beta=0.0, dist_yaw_rate=0.0,
+                    beta_linear=0.0, yaw_rate_linear=0.2)
+    sig = SIGNALS.pack(speed=20.0, steer_driver=0.0, beta=0.0, yaw_rate=r, d1=0.0, d2=0.0, mu=1.0, steer_limited=0.0,
+                       yaw_moment_limited=0.0, limit_share=0.0)
+    i = OUTPUTS.index("yaw_rate_error")
+    assert control_law(TwoDofDesign(p), st, sig)[1][i] == pytest.approx(expected, abs=1e-15)
+    assert control_law(TwoDofDesign(p, always_active=True), st, sig)[1][i] == pytest.approx(0.2 - r, abs=1e-15)
+    # limit_share 1: the reference is the lagged static one and the band has closed on it
+    sig1 = SIGNALS.pack(SIGNALS.as_dict(sig) | {"limit_share": 1.0})
+    assert control_law(TwoDofDesign(p), st, sig1)[1][i] == pytest.approx(0.1 - r, abs=1e-15)
+
+
+def test_reference_model_settings_are_checked():
+    p = load_vehicle("compact-ev")
+    with pytest.raises(DesignError, match="reference_model"):
+        TwoDofDesign(p, reference_model="dynamic")
+    with pytest.raises(DesignError, match="limit_demand_hi > limit_demand_lo"):
+        TwoDofDesign(p, limit_demand_lo=1.5, limit_demand_hi=1.5)
 
 
 def test_saturation_aware_allocation_prefers_yaw():
@@ -146,7 +223,7 @@ def test_control_law_numpy_and_casadi_agree():
         zz = 0.05 * rng.standard_normal(len(STATE))
         ss = np.array([rng.uniform(0, 30), 0.1 * rng.standard_normal(), 0.05 * rng.standard_normal(),
                        0.3 * rng.standard_normal(), rng.standard_normal(), rng.standard_normal(), 1.0,
-                       float(rng.random() < 0.3), float(rng.random() < 0.3)])
+                       float(rng.random() < 0.3), float(rng.random() < 0.3), rng.random()])
         zn, y = control_law(d, zz, ss)
         zc, yc = F(zz, ss)
         # one expression evaluated two ways; yaw moments are ~1e4 N m, hence the absolute 1e-9
@@ -173,3 +250,15 @@ def test_output_channel_margins_closed_form(kb, kg):
     if kb == kg:
         for ch in ("delta", "Nz"):
             assert m[ch].pm_deg == pytest.approx(90.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("ratio,share", [(0.0, 0.0), (1.19, 0.0), (1.2, 0.0), (1.35, 0.5), (1.5, 1.0), (3.0, 1.0)])
+def test_limit_share_moves_to_the_static_reference_beyond_the_rollover_limit(ratio, share):
+    # the driver's linear demand as a multiple of the rollover limit g (t_f + t_r) / (4 h) x rollover_share:
+    # 0 up to limit_demand_lo (1.2), 1 from limit_demand_hi (1.5), linear between; either sign of the demand
+    from evstab.toolkit.ecu.step import limit_share
+    d = TwoDofDesign(load_vehicle("compact-ev"))
+    p = d.params
+    assert d.ay_limit == pytest.approx(0.7 * G * (p.track_front + p.track_rear) / (4 * p.cg_height), rel=1e-12)
+    for sign in (1.0, -1.0):
+        assert limit_share(d, sign * ratio * d.ay_limit) == pytest.approx(share, abs=1e-12)

@@ -238,6 +238,18 @@ def test_design_json_loads_into_designs_that_match_it(design_dir):
     assert d.params.digest() == d.document["vehicle"]["params_digest"]
 
 
+def test_a_design_without_a_reference_model_loads_with_the_static_one(tmp_path, design_dir):
+    # a design.json written before the linear reference model was designed and checked with seed 003's static
+    # reference through the lag: loading it must not change its law
+    from evstab.toolkit.design.design_job import load_design
+    doc = json.loads((design_dir / "design.json").read_text())
+    assert doc["controller"]["reference_model"] == "linear"
+    assert load_design(design_dir).controller.reference_model == "linear"
+    del doc["controller"]["reference_model"]
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    assert load_design(tmp_path).controller.reference_model == "static"
+
+
 def test_load_design_names_the_file_and_field(tmp_path, design_dir):
     from evstab.toolkit.design.design_job import load_design
     doc = json.loads((design_dir / "design.json").read_text())

@@ -191,6 +191,7 @@ def load_design(path) -> LoadedDesign:
         fd = design_filter(est["method"], params, noise, latency=est["latency_s"], antenna_x=est["antenna_x_m"],
                            dt=est["dt_s"], control=True, kinematic=bool(est.get("kinematic", False)))
         c = dict(doc["controller"])
+        c.setdefault("reference_model", "static")  # a design from before the linear reference was designed with that
         ctl = TwoDofDesign(params, **{k: v for k, v in c.items() if k != "yaw_moment_max"},
                            yaw_moment_max=c["yaw_moment_max"])
     except KeyError as e:

@@ -139,6 +139,9 @@ _CONTROLLER_CAL = (
     ("phase_tau", "s", 0.0, 10.0, "weight of the sideslip rate in the phase-plane region"),
     ("phase_gain_nz", "1/s^2", 0.0, 1e4, "yaw moment per unit phase-plane excess, as yaw acceleration (times I_z)"),
     ("phase_gain_steer", "-", 0.0, 100.0, "steer correction per unit phase-plane excess"),
+    ("limit_demand_lo", "-", 0.0, 100.0,
+     "driver's linear lateral-acceleration demand per rollover limit from which the reference moves to the lagged static one"),
+    ("limit_demand_hi", "-", 0.0, 100.0, "... and at which it is the lagged static one"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
     ("gust_deadband", "rad/s", 0.0, 1.0,
      "yaw- and course-rate error beyond which the gust channel acts in straight driving"),
@@ -392,20 +395,22 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     beta_ss, gamma_ss, _ = reference(c, vm, g["steer_cmd_driver"], mu_ref, o)  # the law's own targets
     law0["beta_ref"] = o.if_else(fresh > 0.5, beta_ss, law0["beta_ref"])
     law0["yaw_rate_ref"] = o.if_else(fresh > 0.5, gamma_ss, law0["yaw_rate_ref"])
+    law0["beta_linear"] = o.if_else(fresh > 0.5, beta_ss, law0["beta_linear"])
+    law0["yaw_rate_linear"] = o.if_else(fresh > 0.5, gamma_ss, law0["yaw_rate_linear"])
     z_law = ctl_mod.STATE.pack(law0, o)
     law_st = ctl_mod.STATE.unpack(z_law)
     steer_flag = o.fmax(g["steer_limited"], sup_st.steer_saturated)
     nz_flag = o.fmax(g["yaw_moment_limited"], sup_st.yaw_moment_saturated)
     sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
                                yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=mu_ref, steer_limited=steer_flag,
-                               yaw_moment_limited=nz_flag)
+                               yaw_moment_limited=nz_flag, limit_share=limit_share(c, g["speed"] * gamma_lin, o))
     nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
     z_law_n, law_y = control_law(c, z_law, sig, o, nz_limit)
     law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
     beta_rate = g["ay"] / vm - est["yaw_rate"]
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
-        c, z_sup, g["speed"], law_st.yaw_rate_ref - est["yaw_rate"], est["beta"], est["beta_std"], use,
+        c, z_sup, g["speed"], law.yaw_rate_error, est["beta"], est["beta_std"], use,
         g["steer_cmd_driver"], law.steer, law.yaw_moment, nz_limit, g["dt"], o, beta_rate=beta_rate)
     # the slip control's authority goes to its target at once on a fresh start too (its growth term, with no
     # lag yet, reads the whole slip as growth: the cautious side)
@@ -431,6 +436,14 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                        fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
+
+
+def limit_share(c: TwoDofDesign, demand, o=NUMPY):
+    """The law's ``limit_share`` (:mod:`controllers.two_dof`): 0 while the driver's linear lateral-acceleration
+    demand ``demand`` [m/s^2] is below ``limit_demand_lo`` times the rollover limit, 1 from ``limit_demand_hi``
+    times it, linear between."""
+    q = o.fabs(demand) / c.ay_limit
+    return o.fmin(o.fmax((q - c.limit_demand_lo) / o.fmax(c.limit_demand_hi - c.limit_demand_lo, 1e-9), 0.0), 1.0)
 
 
 CONTROL_STATE = Layout("ECU control state", [

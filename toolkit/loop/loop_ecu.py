@@ -159,7 +159,8 @@ class LoopEcu:
         if self.kind == "yaw-pi":
             sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
                                        yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=g["mu"],
-                                       steer_limited=g["steer_limited"], yaw_moment_limited=g["yaw_moment_limited"])
+                                       steer_limited=g["steer_limited"], yaw_moment_limited=g["yaw_moment_limited"],
+                                       limit_share=zero)
             z_ctl_n, c_y = yaw_pi_law(d.controller, z_ctl, sig, o)
             c = ctl_mod.OUTPUTS.unpack(c_y)
             t_rl, t_rr = rear_torques(d, c.yaw_moment, o)
