@@ -4,7 +4,8 @@ round a circle, and no room imports a room above it.
 
 The rooms, from the ground up (docs/layout.md): ``plants``; ``controllers``; ``toolkit.kernels`` and
 ``toolkit.logs`` (neither imports the other); ``toolkit.estimation``; ``toolkit.ecu``; ``toolkit.loop``;
-``toolkit.verdicts``; ``toolkit.design``; ``toolkit.firmware`` and ``toolkit.cli_types``; ``toolkit.cli``. A
+``toolkit.verdicts``; ``toolkit.design``; ``toolkit.firmware`` and ``toolkit.cli_types``; ``toolkit.cli_logs`` (the
+commands that read drive logs); ``toolkit.cli``. A
 module may import its own room and the rooms below it.
 """
 
@@ -17,7 +18,7 @@ TOP = Path(__file__).resolve().parent.parent
 PARTS = {"plants": "evstab.plants", "controllers": "evstab.controllers", "toolkit": "evstab.toolkit"}
 FLOORS = [("plants",), ("controllers",), ("toolkit.kernels", "toolkit.logs"), ("toolkit.estimation",),
           ("toolkit.ecu",), ("toolkit.loop",), ("toolkit.verdicts",), ("toolkit.design",),
-          ("toolkit.firmware", "toolkit.cli_types"), ("toolkit.cli",)]
+          ("toolkit.firmware", "toolkit.cli_types"), ("toolkit.cli_logs",), ("toolkit.cli",)]
 FLOOR = {room: k for k, rooms in enumerate(FLOORS) for room in rooms}
 
 

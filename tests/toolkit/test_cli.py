@@ -152,7 +152,7 @@ def test_simulate_with_the_stability_loop(tmp_path):
 def test_tune_warns_when_the_fit_is_less_consistent(start, fitted, warned):
     from types import SimpleNamespace
 
-    from evstab.toolkit.cli import tune_warning
+    from evstab.toolkit.cli_logs import tune_warning
     fit = SimpleNamespace(nis_start=start, nis=fitted, nis_interval=(0.7, 1.3), course_fixes=49)
     msg = tune_warning(fit)
     assert bool(msg) == warned

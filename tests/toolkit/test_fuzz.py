@@ -288,7 +288,7 @@ def test_a_vehicle_that_would_make_the_filter_diverge_is_refused(tmp_path, capsy
 def test_estimates_that_stop_being_numbers_are_refused_naming_the_row():
     import pytest
     from evstab.plants.errors import EvstabError
-    from evstab.toolkit.cli import _require_finite
+    from evstab.toolkit.cli_logs import _require_finite
     t = np.arange(5) * 1e-3
     with pytest.raises(EvstabError, match=r"log.csv: row 5 \(t = 0.003 s\): the beta estimate is not finite"):
         _require_finite("log.csv", t, {"beta": np.array([0.0, 0.1, 0.2, np.nan, np.inf])})
