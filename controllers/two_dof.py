@@ -312,7 +312,7 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
         lb, lr = zs.beta_linear, zs.yaw_rate_linear
         ub = lb + d.dt * (a11 * lb + a12 * lr + b11 * s.steer_driver)
         ur = lr + d.dt * (a21 * lb + a22 * lr + b21 * s.steer_driver)
-        over = o.fabs(ur) > o.fmin(d.friction_margin * s.mu * G, d.ay_limit) / vm
+        over = o.fabs(ur) > yaw_rate_limit(d, vm, s.mu, o)
         lb_next = o.if_else(over, beta_ss + (lb - beta_ss) * lag, ub)
         lr_next = o.if_else(over, gamma_ss + (lr - gamma_ss) * lag, ur)
         w = o.fmin(o.fmax(s.limit_share, 0.0), 1.0)
@@ -378,10 +378,16 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = Tr
     beta_ss, gamma_ss = kb * steer_driver, kg * steer_driver
     if not limited:
         return beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22)
-    limit = o.fmin(d.friction_margin * mu * G, d.ay_limit) / vm
+    limit = yaw_rate_limit(d, vm, mu, o)
     mag = o.fabs(gamma_ss)
     scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
     return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)
+
+
+def yaw_rate_limit(d: TwoDofDesign, vm, mu, o=NUMPY):
+    """The reference's largest yaw rate [rad/s] at speed ``vm``: ``friction_margin mu g`` of lateral acceleration,
+    held below :attr:`TwoDofDesign.ay_limit`, over the speed."""
+    return o.fmin(d.friction_margin * mu * G, d.ay_limit) / vm
 
 
 def allocate(d: TwoDofDesign, delta, nz, b11, b21, b22, o=NUMPY, lo=None, hi=None, nz_limit=None):
