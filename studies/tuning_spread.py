@@ -20,7 +20,8 @@ from evstab.plants import load_vehicle
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit.design import limits as lm, sweep as sw
 from evstab.toolkit.design.selection import TUNING_STARTS, regression_caps, tuning_ids
-from evstab.toolkit.design.tuning import MarginConstraint, RolloutCost, tune
+from evstab.toolkit.design.rollout import RolloutCost
+from evstab.toolkit.design.tuning import MarginConstraint, tune
 
 PERTURBATION = 1e-12
 """Relative size of the gradient's perturbation: the order of the rounding two builds of the same

@@ -54,7 +54,8 @@ def test_sweep_row_equals_direct_single_case_runs(case):
 
 def test_rollout_cost_and_gradient_equal_the_numpy_simulator():
     # the tuning's cost and gradient: the forward-mode lane kernel (the default with a compiler)
-    from evstab.toolkit.design.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design.rollout import RolloutCost
+    from evstab.toolkit.design.tuning import phi_of
     rc = RolloutCost(CFG)
     assert rc.lanes is not None
     case = CASE_A
@@ -81,7 +82,8 @@ def test_forward_mode_lanes_equal_casadis_reverse_mode_on_every_run():
     # generated C) and the forward-mode lane kernel, four runs at once; the step's math differs by
     # the lane kernel's vector sin/atan (within 2 ulp) and the sums' order: 3.7e-14 (cost) and
     # 2.9e-14 (gradient) relative apart on these runs (measured) -> 1e-12
-    from evstab.toolkit.design.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design.rollout import RolloutCost
+    from evstab.toolkit.design.tuning import phi_of
     fast, ref = RolloutCost(CFG), RolloutCost(CFG, lanes=False)
     assert fast.lanes is not None and ref.lanes is None
     runs, rests = [], []

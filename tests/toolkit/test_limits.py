@@ -128,7 +128,8 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
     # derivative by the gains what central differences give
     from evstab.toolkit.design import sweep as sw
     from evstab.toolkit.verdicts.fmvss126 import run_series
-    from evstab.toolkit.design.tuning import RolloutCost, phi_of
+    from evstab.toolkit.design.rollout import RolloutCost
+    from evstab.toolkit.design.tuning import phi_of
     cfg = sw.SweepConfig(load_vehicle("compact-ev"))
     a_cache: dict = {}
     case = lm.LimitCase("fmvss126", 0.6)

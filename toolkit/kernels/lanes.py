@@ -183,7 +183,7 @@ def _schedule(nodes: list[_Node], window: int | None = None) -> list[int]:
     faster with the same bits (``tests/toolkit/test_lanes.py``). A kernel much larger than the
     registers can hold needs the window: the tuning's forward-mode step, reordered over the whole step,
     keeps its values alive long enough to spill, and is faster reordered within windows
-    (:data:`toolkit.design.tuning.FORWARD_WINDOW`). The loop's kernels keep the whole step (measured: docs/internals.md, compiled kernels)."""
+    (:data:`toolkit.design.rollout.FORWARD_WINDOW`). The loop's kernels keep the whole step (measured: docs/internals.md, compiled kernels)."""
     depth = [0.0] * len(nodes)
     for n, node in enumerate(nodes):
         if node.invariant or node.op in (ca.OP_INPUT, ca.OP_CONST):
