@@ -21,7 +21,8 @@ the model-following law of seed 003 acts only when the car needs it.
   band between the linear car and the lagged static reference, both friction-limited; see
   :mod:`controllers.two_dof`) exceeds ``(yaw_rate_deadband + yaw_rate_deadband_per_speed
   v) (1 - deadband_shrink use)``, or the estimated sideslip exceeds ``beta_threshold`` (only when the
-  estimate is trustworthy: ``beta_std < beta_std_max``); inactive again once both are below
+  estimate is trustworthy: ``beta_std < beta_std_max``; the sideslip the ECU passes here is the slide,
+  less the geometric sideslip ``l_r r / v`` of a turn, :func:`toolkit.ecu.step.ecu_control`); inactive again once both are below
   ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out
   over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
   yaw moment, and the law's integrators are held at 0.
@@ -176,6 +177,17 @@ def gust_moment(d, lags, yaw_rate_ref, yaw_rate, beta_rate, straight, speed, nz_
     return o.fmin(o.fmax(nz, -lim), lim), (e_r, rate)
 
 
+def slide(d, beta, yaw_rate, speed, o=NUMPY):
+    """The sideslip [rad] the sideslip threshold and the phase plane judge: ``beta`` less the part of it the
+    geometry of a turn explains, ``geometric_share l_r r / v`` (the rear axle follows a path inside the CG's: a
+    car at 40 km/h turning at 35 deg/s has 4 deg of sideslip at its CG with its rear tyres hardly slipping),
+    taken only where it has the sideslip's sign and at most the sideslip itself, so that it can shrink the
+    sideslip judged, never grow it or change its sign (a slide has a sideslip against the turn, which keeps
+    all of it). ``speed`` above 0."""
+    geometric = d.geometric_share * d.params.lr * yaw_rate / speed
+    return beta - o.fmin(o.fmax(geometric, o.fmin(beta, 0.0)), o.fmax(beta, 0.0))
+
+
 def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):
     """How far [rad] the car is outside the sideslip phase-plane region
     ``|beta + phase_tau beta'| <= phase_beta`` (signed, 0 inside).
@@ -214,14 +226,16 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     blend_next = o.fmin(o.fmax(blend + o.if_else(active_next > 0.5, step, -step), 0.0), 1.0)
     if d.always_active:
         blend_next = 1.0 + 0.0 * speed
-    # yaw guard: while the yaw-rate error is beyond its dead band, no command may push the yaw rate
-    # further from the reference (the law's sideslip and disturbance channels, fed by estimates that
-    # fail at the limit, can ask for that); b21 > 0 and b22 > 0: a left steer or a positive moment
-    # turns the car left
-    beyond = o.fabs(yaw_rate_error) > d.guard_share * thr_r
+    # yaw guard: while the yaw-rate error is beyond guard_share of its dead band, no command may push the yaw
+    # rate further from the reference (the law's sideslip and disturbance channels, fed by estimates that
+    # fail at the limit, can ask for that): such a command fades out over the next guard_width of the band
+    # (dropped at one error, it would switch between all and nothing as the gyro's noise moves the error
+    # across it); b21 > 0 and b22 > 0: a left steer or a positive moment turns the car left
+    beyond = o.fmin(o.fmax((o.fabs(yaw_rate_error) - d.guard_share * thr_r) / o.fmax(d.guard_width * thr_r, 1e-9),
+                           0.0), 1.0)
     want = steer_law - steer_driver
-    want = o.if_else(beyond * (want * yaw_rate_error < 0.0) > 0.5, 0.0, want)
-    nz_law = o.if_else(beyond * (nz_law * yaw_rate_error < 0.0) > 0.5, 0.0, nz_law)
+    want = o.if_else(want * yaw_rate_error < 0.0, (1.0 - beyond) * want, want)
+    nz_law = o.if_else(nz_law * yaw_rate_error < 0.0, (1.0 - beyond) * nz_law, nz_law)
     # sideslip first beyond the phase-plane region: a yaw moment and a steer correction that turn the
     # car against the slide (beta' = a_y / v - r: more yaw rate, less sideslip rate), added after the
     # yaw guard so that it cannot drop them

@@ -115,6 +115,14 @@ class TwoDofDesign:
     """Growth of that dead band with speed [rad/s per m/s]: 3.1 deg/s at 80 km/h."""
     deadband_shrink: float = 0.5
     """Share by which the dead bands shrink at full friction use [-]."""
+    understeer_band: float = 0.2
+    """Share of the reference band's smaller yaw rate by which the band reaches towards 0 [-]: a car that turns
+    the reference's way at no less than ``1 - understeer_band`` of it is inside (a nominal model's stiffness
+    error shows as a share of the reference; oversteer gets no such allowance), while the driver asks at most
+    ``understeer_demand`` of the reference's yaw-rate limit, none from the limit on (:func:`understeer_share`)."""
+    understeer_demand: float = 0.8
+    """The driver's linear demand, as a share of the reference's yaw-rate limit, up to which the understeer band
+    is whole [-] (below 1)."""
     beta_threshold: float = np.deg2rad(3.0)
     """Estimated sideslip [rad] that activates the law (when ``beta_std < beta_std_max``)."""
     beta_std_max: float = np.deg2rad(2.0)
@@ -166,12 +174,18 @@ class TwoDofDesign:
     guard off."""
     phase_tau: float = 0.3
     """Weight [s] of the sideslip rate in the phase-plane region (how far ahead it looks)."""
+    geometric_share: float = 1.0
+    """Share of the geometric sideslip ``l_r r / v`` (the rear axle's path inside the CG's in a turn) the
+    sideslip threshold and the phase plane leave out of the sideslip they judge [-]."""
     phase_gain_nz: float = 50.0
     """Yaw moment per unit of phase-plane excess, as a yaw acceleration [1/s^2] (times I_z)."""
     phase_gain_steer: float = 1.0
     """Steer correction per unit of phase-plane excess [rad/rad]."""
     guard_share: float = 0.0
     """The yaw guard acts once the yaw-rate error exceeds this share of the activation dead band."""
+    guard_width: float = 0.25
+    """... and drops an opposing command in full from ``guard_share + guard_width`` of it, in proportion
+    between (a guard that switched at one error would chatter the command with the gyro's noise)."""
     gust_deadband: float = np.deg2rad(0.3)
     """Yaw-rate and course-rate error [rad/s] beyond which the gust channel acts while the driver goes
     straight (:func:`controllers.supervisor.gust_moment`)."""
@@ -213,9 +227,11 @@ class TwoDofDesign:
         if not self.dt > 0:
             raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
-                     "slip_cut_time", "slip_recover_time", "slip_lead_time"):
+                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.understeer_demand < 1.0:
+            raise DesignError(f"controller setting 'understeer_demand' must be in [0, 1), got {self.understeer_demand!r}")
         if self.reference_model not in REFERENCE_MODELS:
             raise DesignError(f"controller setting 'reference_model' must be one of {', '.join(REFERENCE_MODELS)}, "
                               f"got {self.reference_model!r}")
@@ -329,7 +345,12 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
         e_b, e_r = xb - s.beta, xr - s.yaw_rate
     else:
         e_b = o.fmin(o.fmax(s.beta, o.fmin(xb, sb)), o.fmax(xb, sb)) - s.beta
-        e_r = o.fmin(o.fmax(s.yaw_rate, o.fmin(xr, sr)), o.fmax(xr, sr)) - s.yaw_rate
+        # the understeer side reaches towards 0 only while the driver asks less than the road gives (a shortfall
+        # there is the model's; beyond, the car may need the law to turn it)
+        lo, hi = o.fmin(xr, sr), o.fmax(xr, sr)
+        share = understeer_share(d, vm, s.steer_driver, s.mu, o)
+        lo, hi = lo - share * o.fmax(lo, 0.0), hi - share * o.fmin(hi, 0.0)
+        e_r = o.fmin(o.fmax(s.yaw_rate, lo), hi) - s.yaw_rate
     if np.isfinite(d.beta_error_max):
         e_b = o.fmin(o.fmax(e_b, -d.beta_error_max), d.beta_error_max)
     if d.disturbance_rejection:
@@ -382,6 +403,18 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = Tr
     mag = o.fabs(gamma_ss)
     scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
     return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)
+
+
+def understeer_share(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
+    """How far the reference band reaches towards 0 on the understeer side, as a share of its smaller yaw rate:
+    ``understeer_band`` while the driver's linear demand (the nominal car's steady yaw rate for the driver's
+    steer, unlimited) is at most ``understeer_demand`` of the reference's yaw-rate limit
+    (:func:`yaw_rate_limit`), falling linearly to 0 at the limit. Below it a car that yaws less than the
+    nominal model is the model's error; at the limit (FMVSS 126's sine with dwell on a wet road) the law's
+    help to turn the car is what its lateral displacement needs."""
+    _, gamma_lin, _ = reference(d, vm, steer_driver, mu, o, limited=False)
+    demand = o.fabs(gamma_lin) / o.fmax(yaw_rate_limit(d, vm, mu, o), 1e-12)
+    return d.understeer_band * o.fmin(o.fmax((1.0 - demand) / (1.0 - d.understeer_demand), 0.0), 1.0)
 
 
 def yaw_rate_limit(d: TwoDofDesign, vm, mu, o=NUMPY):

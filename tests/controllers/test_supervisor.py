@@ -88,6 +88,45 @@ def test_yaw_guard_and_steer_authority():
     assert zn["steer_saturated"] == 1.0  # and the ECU knows its steer is limited (its own flag for the law's anti-windup)
 
 
+@pytest.mark.parametrize("share,kept", [(0.0, 1.0), (0.25, 0.75), (0.5, 0.5), (1.0, 0.0), (2.0, 0.0)])
+def test_yaw_guard_fades_an_opposing_command_over_its_width(share, kept):
+    # the guard drops an opposing command in proportion to the error over guard_width of the dead band, so that
+    # an error that the gyro's noise moves across 0 does not switch the command between all and nothing. At
+    # 20 m/s and friction use 0.3 the dead band is (2 + 0.05 x 20) deg/s x (1 - 0.5 x 0.3) = 2.55 deg/s, its
+    # width 0.25 of that 0.6375 deg/s; an error of `share` of the width keeps 1 - share of the command
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    assert (d.guard_share, d.guard_width) == (0.0, 0.25)
+    width = np.radians(2.55) * 0.25
+    z = _state(d, active=1.0, blend=1.0, mu_est=1.0)
+    e = share * width
+    _, steer, nz, _ = sup.supervise(d, z, 20.0, e, 0.0, 0.0, 0.3, 0.02, 0.02 - 1e-4, -500.0, 1e4, 1e-3)
+    # 1e-9: the dead band is a product of a few doubles; the command's share follows it to that order
+    assert nz == pytest.approx(-500.0 * kept, abs=1e-9)
+    assert steer == pytest.approx(0.02 - 1e-4 * kept, abs=1e-12)
+    # a command that helps (turns the car towards the reference) passes whole at any error
+    _, _, nz, _ = sup.supervise(d, z, 20.0, e, 0.0, 0.0, 0.3, 0.02, 0.02, 500.0, 1e4, 1e-3)
+    assert nz == 500.0
+
+
+@pytest.mark.parametrize("beta_deg,r,expected_deg", [
+    # compact-ev's l_r, 10 m/s: l_r r / v of r = 0.5 rad/s; a geometric sideslip the turn explains is left out
+    # (4 deg of CG sideslip against more geometry: nothing left), never more than the sideslip itself
+    (4.0, 0.5, 0.0), (-4.0, -0.5, 0.0), (0.0, 0.5, 0.0),
+    # a sideslip against the turn (a slide to the outside) keeps all of it
+    (-4.0, 0.5, -4.0), (4.0, -0.5, 4.0),
+    # no yaw rate: nothing to leave out
+    (3.0, 0.0, 3.0)])
+def test_slide_leaves_out_a_turns_geometric_sideslip(beta_deg, r, expected_deg):
+    p = load_vehicle("compact-ev").as_nominal()
+    d = TwoDofDesign(p)
+    assert sup.slide(d, np.radians(beta_deg), r, 10.0) == pytest.approx(np.radians(expected_deg), abs=1e-15)
+    # a sideslip larger than the geometry keeps the difference: 10 deg in a left turn less l_r 0.5 / 10
+    geometric = p.lr * 0.5 / 10.0
+    assert geometric < np.radians(10.0)
+    assert sup.slide(d, np.radians(10.0), 0.5, 10.0) == pytest.approx(np.radians(10.0) - geometric, abs=1e-15)
+    assert sup.slide(TwoDofDesign(p, geometric_share=0.0), np.radians(4.0), 0.5, 10.0) == np.radians(4.0)
+
+
 def test_slip_control_keeps_the_rear_wheels_rolling():
     # mu 0.3, 60 km/h, sine with dwell at 5 A: the law saturates its yaw moment (4,413 N m, above
     # 2,000 N m); with the rear-grip limit switched off, only slip control stands between that demand

@@ -8,7 +8,7 @@ import pytest
 
 from evstab.controllers.actuators import ActuatorLimits, actuator_law
 from evstab.controllers.two_dof import (OUTPUTS, SIGNALS, STATE, TwoDofDesign, allocate as allocate_commands,
-                                        control_law, reference)
+                                        control_law, reference, understeer_share)
 from evstab.plants.errors import DesignError
 from evstab.plants import G, load_vehicle
 from evstab.plants.bicycle import lateral_coefficients, lateral_matrices, steady_state_gains
@@ -100,7 +100,8 @@ def test_controller_tracks_on_the_nominal_bicycle():
     # discrete controller (seed 003's static reference) on the exact linear plant: the error decays with the
     # model-following pole
     p = load_vehicle("compact-ev")
-    d = TwoDofDesign(p, k_beta=5.0, k_gamma=5.0, reference_model="static")
+    # (no understeer band: the car approaches the reference from below, and the law is to pull it all the way)
+    d = TwoDofDesign(p, k_beta=5.0, k_gamma=5.0, reference_model="static", understeer_band=0.0)
     A, B = lateral_matrices(p, 20.0)
     x = np.zeros(2)
     st = np.zeros(len(STATE))
@@ -167,17 +168,56 @@ def test_linear_reference_holds_the_friction_limit():
 def test_the_supervised_law_acts_on_the_distance_to_the_reference_band(r, expected):
     # linear car 0.2 rad/s, lagged static reference 0.1 rad/s: a yaw rate between them (the edges included) is
     # no error; beyond, the error is to the nearer edge; always active (the paper's law) it is to the reference
+    # (without the understeer band, which the next test checks)
     p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p, understeer_band=0.0)
     st = STATE.pack(xi_beta=0.0, xi_yaw_rate=0.0, beta_ref=0.0, yaw_rate_ref=0.1, dist_beta=0.0, dist_yaw_rate=0.0,
                     beta_linear=0.0, yaw_rate_linear=0.2)
     sig = SIGNALS.pack(speed=20.0, steer_driver=0.0, beta=0.0, yaw_rate=r, d1=0.0, d2=0.0, mu=1.0, steer_limited=0.0,
                        yaw_moment_limited=0.0, limit_share=0.0)
     i = OUTPUTS.index("yaw_rate_error")
-    assert control_law(TwoDofDesign(p), st, sig)[1][i] == pytest.approx(expected, abs=1e-15)
+    assert control_law(d, st, sig)[1][i] == pytest.approx(expected, abs=1e-15)
     assert control_law(TwoDofDesign(p, always_active=True), st, sig)[1][i] == pytest.approx(0.2 - r, abs=1e-15)
     # limit_share 1: the reference is the lagged static one and the band has closed on it
     sig1 = SIGNALS.pack(SIGNALS.as_dict(sig) | {"limit_share": 1.0})
-    assert control_law(TwoDofDesign(p), st, sig1)[1][i] == pytest.approx(0.1 - r, abs=1e-15)
+    assert control_law(d, st, sig1)[1][i] == pytest.approx(0.1 - r, abs=1e-15)
+
+
+@pytest.mark.parametrize("linear,static,r,expected", [
+    # band 0.1-0.2 rad/s, share 0.2: it reaches down to 0.08; the oversteer side stays at 0.2
+    (0.2, 0.1, 0.08, 0.0), (0.2, 0.1, 0.07, 0.01), (0.2, 0.1, 0.0, 0.08), (0.2, 0.1, -0.1, 0.18),
+    (0.2, 0.1, 0.21, -0.01),
+    # the mirror image in a right turn: up to -0.08, the oversteer side at -0.2
+    (-0.2, -0.1, -0.08, 0.0), (-0.2, -0.1, -0.07, -0.01), (-0.2, -0.1, -0.21, 0.01),
+    # a band across 0 (a reversal of the steer) already holds 0: unchanged
+    (0.1, -0.05, -0.06, 0.01), (0.1, -0.05, 0.11, -0.01), (0.1, -0.05, 0.0, 0.0)])
+def test_the_understeer_band_reaches_towards_zero_only(linear, static, r, expected):
+    # a car that turns the reference's way at 80 % of the band's smaller yaw rate (understeer_band 0.2) is inside
+    # it, as a nominal model with tyres 40 % too stiff asks; yawing more than the band gets no allowance
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p, understeer_band=0.2)
+    st = STATE.pack(xi_beta=0.0, xi_yaw_rate=0.0, beta_ref=0.0, yaw_rate_ref=static, dist_beta=0.0,
+                    dist_yaw_rate=0.0, beta_linear=0.0, yaw_rate_linear=linear)
+    sig = SIGNALS.pack(speed=20.0, steer_driver=0.0, beta=0.0, yaw_rate=r, d1=0.0, d2=0.0, mu=1.0, steer_limited=0.0,
+                       yaw_moment_limited=0.0, limit_share=0.0)
+    # 1e-15: the edges are one product and one difference of numbers of order 0.1
+    assert control_law(d, st, sig)[1][OUTPUTS.index("yaw_rate_error")] == pytest.approx(expected, abs=1e-15)
+
+
+@pytest.mark.parametrize("ratio,expected", [(0.0, 0.2), (0.8, 0.2), (0.9, 0.1), (0.95, 0.05), (1.0, 0.0), (2.0, 0.0)])
+def test_the_understeer_band_is_whole_below_0_8_of_the_limit_and_gone_at_it(ratio, expected):
+    # the driver's linear demand (the nominal car's steady yaw rate for the steer) as `ratio` of the reference's
+    # limit min(0.85 mu g, ay_limit) / v: the band's share is 0.2 up to 0.8 of it, falls linearly, 0 from 1 on;
+    # either sign of the steer
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p)
+    assert (d.understeer_band, d.understeer_demand) == (0.2, 0.8)
+    v, mu = 20.0, 0.6
+    limit = min(0.85 * mu * G, d.ay_limit) / v
+    steer = ratio * limit / steady_state_gains(p, v)[1]
+    for sign in (1.0, -1.0):
+        # 1e-12: a ratio and a difference of doubles of order 1
+        assert understeer_share(d, v, sign * steer, mu) == pytest.approx(expected, abs=1e-12)
 
 
 def test_reference_model_settings_are_checked():
@@ -186,6 +226,8 @@ def test_reference_model_settings_are_checked():
         TwoDofDesign(p, reference_model="dynamic")
     with pytest.raises(DesignError, match="limit_demand_hi > limit_demand_lo"):
         TwoDofDesign(p, limit_demand_lo=1.5, limit_demand_hi=1.5)
+    with pytest.raises(DesignError, match="understeer_demand"):
+        TwoDofDesign(p, understeer_demand=1.0)
 
 
 def test_saturation_aware_allocation_prefers_yaw():

@@ -114,6 +114,8 @@ _CONTROLLER_CAL = (
     ("yaw_rate_deadband", "rad/s", 0.0, 1.0, "yaw-rate error that activates the law (at low speed)"),
     ("yaw_rate_deadband_per_speed", "rad/s/(m/s)", 0.0, 0.1, "growth of the yaw-rate dead band with speed"),
     ("deadband_shrink", "-", 0.0, 1.0, "share by which the dead bands shrink at full friction use"),
+    ("understeer_band", "-", 0.0, 1.0, "share of the reference band's smaller yaw rate by which it reaches towards 0"),
+    ("understeer_demand", "-", 0.0, 0.99, "driver's demand per the reference's yaw-rate limit up to which the understeer band is whole"),
     ("beta_threshold", "rad", 0.0, 1.0, "estimated sideslip that activates the law"),
     ("beta_std_max", "rad", 0.0, 1.0, "sideslip-estimate std above which the sideslip criterion is ignored"),
     ("deactivate_ratio", "-", 0.0, 1.0, "hysteresis: share of the thresholds below which the law may end"),
@@ -137,12 +139,14 @@ _CONTROLLER_CAL = (
     ("ay_headroom_share", "-", 0.0, 10.0, "... plus this share of the measured one"),
     ("phase_beta", "rad", 0.0, 1e9, "half-width of the sideslip phase-plane region |beta + phase_tau beta'|"),
     ("phase_tau", "s", 0.0, 10.0, "weight of the sideslip rate in the phase-plane region"),
+    ("geometric_share", "-", 0.0, 1.0, "share of the geometric sideslip l_r r / v the slide judged leaves out"),
     ("phase_gain_nz", "1/s^2", 0.0, 1e4, "yaw moment per unit phase-plane excess, as yaw acceleration (times I_z)"),
     ("phase_gain_steer", "-", 0.0, 100.0, "steer correction per unit phase-plane excess"),
     ("limit_demand_lo", "-", 0.0, 100.0,
      "driver's linear lateral-acceleration demand per rollover limit from which the reference moves to the lagged static one"),
     ("limit_demand_hi", "-", 0.0, 100.0, "... and at which it is the lagged static one"),
     ("guard_share", "-", 0.0, 10.0, "share of the yaw-rate dead band beyond which no command may oppose the error"),
+    ("guard_width", "-", 1e-6, 10.0, "share of the dead band over which an opposing command fades out"),
     ("gust_deadband", "rad/s", 0.0, 1.0,
      "yaw- and course-rate error beyond which the gust channel acts in straight driving"),
     ("gust_gain", "1/s", 0.0, 1e3,
@@ -409,8 +413,9 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
     beta_rate = g["ay"] / vm - est["yaw_rate"]
+    beta_slide = sup_mod.slide(c, est["beta"], est["yaw_rate"], vm, o)  # the sideslip less a turn's geometry
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
-        c, z_sup, g["speed"], law.yaw_rate_error, est["beta"], est["beta_std"], use,
+        c, z_sup, g["speed"], law.yaw_rate_error, beta_slide, est["beta_std"], use,
         g["steer_cmd_driver"], law.steer, law.yaw_moment, nz_limit, g["dt"], o, beta_rate=beta_rate)
     # the slip control's authority goes to its target at once on a fresh start too (its growth term, with no
     # lag yet, reads the whole slip as growth: the cautious side)
