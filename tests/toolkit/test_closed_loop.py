@@ -115,11 +115,13 @@ def test_a_design_folder_ecu_runs_in_the_loop():
     # an EcuDesign (what `evstab export` prints) runs as the loop's ECU, with its own calibration
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.ecu.step import EcuDesign
+    # (the law always acting, so that its gains show in a step the supervision would leave to the driver)
     p = load_vehicle("micro-ev")
-    ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True), TwoDofDesign(p.as_nominal(), k_beta=9.0))
+    law = TwoDofDesign(p.as_nominal(), k_beta=9.0, always_active=True)
+    ecu = EcuDesign.from_designs(design_filter("dakf", p, control=True), law)
     man = step_steer(25 / 3.6, np.radians(4.0), start=0.2, duration=1.0)
     a = simulate(p, "two-track", man, controller="two-dof", design=ecu)
-    b = simulate(p, "two-track", man, controller="two-dof", design=TwoDofDesign(p.as_nominal(), k_beta=9.0))
+    b = simulate(p, "two-track", man, controller="two-dof", design=law)
     np.testing.assert_array_equal(a.truth["beta"], b.truth["beta"])  # the same ECU, built two ways
-    c = simulate(p, "two-track", man, controller="two-dof")
+    c = simulate(p, "two-track", man, controller="two-dof", design=TwoDofDesign(p.as_nominal(), always_active=True))
     assert np.max(np.abs(a.commands["yaw_moment"] - c.commands["yaw_moment"])) > 1.0  # K_beta 9 is not 5
