@@ -37,6 +37,10 @@ the model-following law of seed 003 acts only when the car needs it.
   the driver's path, beyond a narrow band, rejects a crosswind or a split-friction pull, which stay
   inside the law's activation band. It reads no sideslip estimate (a lateral force the model does not
   know makes that estimate wrong), and no single wrong sensor makes it act.
+* **Drive cut** (:func:`drive_cut`): while the law acts against oversteer, the driver's drive torque
+  (the speed hold's, from the rear motors) is cut by ``drive_cut`` times the law's authority, the torque
+  intervention of an ESC: the rear tyres' grip goes to the side force and the yaw moment. The
+  ``drive_share`` output says how much of it the ECU lets through.
 * **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
   ``steer_authority`` and its rate to ``steer_authority_rate``, as an active front steering
   superposition gear allows; the ECU itself knows when it limited a command (its own limit flags
@@ -62,13 +66,15 @@ STATE = Layout("supervisor state", [
     Signal("slip_lag", "-", "the worse rear wheel's slip, lagged"),
     Signal("gust_yaw_error", "rad/s", "the gust channel's yaw-rate error, low-passed"),
     Signal("gust_rate", "rad/s", "the kinematic sideslip rate a_y / v - r, low-passed for the gust channel"),
+    Signal("oversteer", "-", "1 from the period the law acts against oversteer until its authority is out"),
 ])
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
 the ECU's own limit flags of the last period, the linear model's lateral-acceleration demand
 through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
 is behind the steady-state demand without being saturated) [m/s^2], the yaw moment's
-authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-]."""
+authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-],
+the gust channel's low-passed errors, the oversteer latch of the drive cut (:func:`drive_cut`)."""
 
 
 def initial_state(d, o=NUMPY):
@@ -77,7 +83,7 @@ def initial_state(d, o=NUMPY):
     v = STATE.pack(o=o, active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
                    mu_est=d.mu_max if o is not NUMPY else float(d.mu_max), steer_saturated=0.0,
                    yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0, gust_yaw_error=0.0,
-                   gust_rate=0.0)
+                   gust_rate=0.0, oversteer=0.0)
     return list(v) if o is NUMPY else v
 
 
@@ -199,6 +205,29 @@ def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):
     boundary before the sideslip itself is large), and the controller puts sideslip first."""
     s = trusted * beta + d.phase_tau * beta_rate
     return s - o.fmin(o.fmax(s, -d.phase_beta), d.phase_beta)
+
+
+def drive_cut(d, oversteer, blend, yaw_rate_error, yaw_rate, beta, beta_rate, beta_std, o=NUMPY):
+    """``(drive_share, oversteer_next)``: the share of the driver's drive torque the ECU lets through, and the
+    oversteer latch.
+
+    The latch is set on the first period the law has authority (``blend`` > 0, this period's) and the car
+    oversteers: it yaws beyond the reference band (the law's ``yaw_rate_error`` against the yaw rate), is
+    outside the phase-plane region (:func:`phase_plane_excess`), or its sideslip ``beta`` (:func:`slide`) is
+    beyond ``beta_threshold`` while the estimate is trusted; it holds until the law's authority is out. The
+    share is ``1 - drive_cut x blend`` while it is set, 1 otherwise (and 1 with ``always_active``, the
+    paper's law). The speed hold's drive torque comes from the rear motors, and what they take from the
+    rear tyres' grip the rear axle lacks against the slide. A car that understeers keeps its drive (cutting
+    it would move load to the front axle: lift-off oversteer). Held, not judged each period: the yaw-rate
+    error crosses the band's edge with the gyro's noise in a slide, and a cut judged each period would
+    switch the drive on and off at 1 kHz."""
+    trusted = beta_std < d.beta_std_max
+    excess = phase_plane_excess(d, beta, beta_rate, trusted, o)
+    over = o.fmax(o.fmax(yaw_rate_error * yaw_rate < 0.0, o.fabs(excess) > 0.0),
+                  trusted * (o.fabs(beta) > d.beta_threshold))
+    latch = o.if_else(blend > 0.0, o.fmax(oversteer, over), 0.0)
+    cut = 0.0 if d.always_active else d.drive_cut
+    return 1.0 - cut * blend * latch, latch
 
 
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,

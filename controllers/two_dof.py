@@ -133,6 +133,10 @@ class TwoDofDesign:
     """... for this long [s]."""
     blend_time: float = 0.1
     """The law's authority ramps in and out over this time [s]."""
+    drive_cut: float = 1.0
+    """Share of the driver's drive torque the ECU takes away at the law's full authority [-], in proportion to
+    its blend weight (the ``drive_share`` output; none with ``always_active``): the torque intervention of an
+    ESC, which leaves the rear tyres' grip to the side force and the yaw moment while the law acts."""
     steer_authority: float | None = None
     """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's; None: the
     vehicle file's ``steer_authority``, else :data:`STEER_AUTHORITY`. FMVSS 126 on
@@ -230,6 +234,8 @@ class TwoDofDesign:
                      "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.drive_cut <= 1.0:
+            raise DesignError(f"controller setting 'drive_cut' must be in [0, 1], got {self.drive_cut!r}")
         if not 0.0 <= self.understeer_demand < 1.0:
             raise DesignError(f"controller setting 'understeer_demand' must be in [0, 1), got {self.understeer_demand!r}")
         if self.reference_model not in REFERENCE_MODELS:

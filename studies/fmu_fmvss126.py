@@ -6,7 +6,8 @@ compiled two-track plant (:class:`toolkit.kernels.compiled.CompiledPlant`) the c
 outputs of the previous period (one period of delay): speed ``vx``, yaw rate, lateral acceleration, the rear
 wheel speeds, the road-wheel steer as last commanded, and a 5 Hz GPS course ``yaw + beta`` (HDOP 1, 10
 satellites); no noise and no road-friction sensor. The actuators are ideal: the steer command is the road-wheel
-angle, the yaw-moment command the rear motors' moment. The car alone runs the same loop with the driver's
+angle, the yaw-moment command the rear motors' moment, and the ECU's ``drive_share`` scales the speed hold's drive
+torque until the robot coasts. The car alone runs the same loop with the driver's
 steer and no yaw moment. Runs: the two largest amplitudes of the standard's series at 80 km/h on mu 1
 (``A`` from the standard's slowly increasing steer, :func:`toolkit.verdicts.fmvss126.find_a`), steered left.
 
@@ -77,7 +78,7 @@ def run_swd(p, fmu_path, amplitude_deg: float, mu: float = MU, control: bool = T
     u[i["dt"]], u[i["gps_hdop"]], u[i["gps_sats"]], u[i["mu"]] = dt, 1.0, 10.0, 10.0
     cmd = np.zeros(len(COMMANDS))
     cmd[COMMANDS.index("speed_ref")], cmd[COMMANDS.index("drive_on")] = man.speed, 1.0
-    out_vr = [VR_OUTPUT + OUTPUTS.index("steer_cmd"), VR_OUTPUT + OUTPUTS.index("yaw_moment_cmd")]
+    out_vr = [VR_OUTPUT + OUTPUTS.index(k) for k in ("steer_cmd", "yaw_moment_cmd", "drive_share")]
     Y = np.empty((n, len(TRUTH)))
     _, y = plant.step(x, cmd, w)  # the outputs at the start (the state is not advanced)
     try:
@@ -91,10 +92,11 @@ def run_swd(p, fmu_path, amplitude_deg: float, mu: float = MU, control: bool = T
             u[i["gps_valid"]], u[i["gps_course"]] = (1.0, g["yaw"] + g["beta"]) if fix else (0.0, 0.0)
             ecu.setReal(list(range(len(INPUTS))), list(u))
             ecu.doStep(currentCommunicationPoint=k * dt, communicationStepSize=dt)
-            steer, nz = ecu.getReal(out_vr) if control else (driver[k], 0.0)
+            steer, nz, drive = ecu.getReal(out_vr) if control else (driver[k], 0.0, 1.0)
             cmd[COMMANDS.index("steer")], cmd[COMMANDS.index("yaw_moment")] = steer, nz
-            if man.coast_from is not None and t[k] >= man.coast_from:
-                cmd[COMMANDS.index("drive_on")] = 0.0
+            # the speed hold's drive torque, less what the ECU takes away; none once the robot coasts
+            coasting = man.coast_from is not None and t[k] >= man.coast_from
+            cmd[COMMANDS.index("drive_on")] = 0.0 if coasting else drive
             x, y = plant.step(x, cmd, w)
             Y[k] = y
     finally:

@@ -279,3 +279,40 @@ def test_gust_channel_rejects_a_crosswind():
     nz = c["yaw_moment_cmd"]
     assert np.all(nz[r.t < man.events["gust"]] == 0.0)  # nothing before the gust
     assert np.max(np.abs(np.diff(nz))) < 200.0
+
+
+def test_the_drive_is_cut_only_while_the_law_acts_against_oversteer():
+    # hand-worked: beta_threshold 3 deg, phase region |beta + 0.3 beta'| <= 4 deg, beta_std_max 2 deg
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p.as_nominal())
+    assert (np.degrees(d.beta_threshold), np.degrees(d.phase_beta), d.phase_tau) == pytest.approx((3.0, 4.0, 0.3))
+    ok, unsure = np.radians(0.5), np.radians(2.5)  # beta_std: trusted, not trusted
+    r = 0.2  # [rad/s] a left turn
+
+    def cut(latch, blend, e, beta=0.0, rate=0.0, std=ok, dd=d):
+        return sup.drive_cut(dd, latch, blend, e, r, beta, rate, std)
+
+    # the law off: the drive is the driver's and the latch clears, whatever the car does
+    assert cut(1.0, 0.0, -0.05, beta=0.2) == (1.0, 0.0)
+    # understeer (the car yaws less than the band: the error has the turn's sign): no cut
+    assert cut(0.0, 0.5, +0.05) == (1.0, 0.0)
+    # oversteer (beyond the band, the error against the turn): latched, the cut in proportion to the blend
+    assert cut(0.0, 0.5, -0.05) == (0.5, 1.0)
+    assert cut(0.0, 0.5, -0.05, dd=TwoDofDesign(p.as_nominal(), drive_cut=0.4)) == pytest.approx((0.8, 1.0))
+    # inside the band (error 0) the latch holds what it was
+    assert cut(1.0, 0.3, 0.0) == pytest.approx((0.7, 1.0)) and cut(0.0, 0.3, 0.0) == (1.0, 0.0)
+    # the sideslip beyond 3 deg sets it only while the estimate is trusted (3.5 deg: inside the phase region)
+    assert cut(0.0, 1.0, 0.0, beta=np.radians(3.5)) == (0.0, 1.0)
+    assert cut(0.0, 1.0, 0.0, beta=np.radians(3.5), std=unsure) == (1.0, 0.0)
+    # the phase plane: a sideslip rate of 15 deg/s is 4.5 deg after 0.3 s, beyond the region with no sideslip yet
+    assert cut(0.0, 1.0, 0.0, rate=np.radians(15.0), std=unsure) == (0.0, 1.0)
+    assert cut(0.0, 1.0, 0.0, rate=np.radians(13.0), std=unsure) == (1.0, 0.0)
+    # the paper's law (always active) never cuts
+    assert cut(0.0, 1.0, -0.05, dd=TwoDofDesign(p.as_nominal(), always_active=True))[0] == 1.0
+
+
+def test_the_drive_cut_setting_is_a_share():
+    p = load_vehicle("compact-ev")
+    for bad in (-0.1, 1.5):
+        with pytest.raises(Exception, match="drive_cut"):
+            TwoDofDesign(p.as_nominal(), drive_cut=bad)

@@ -125,3 +125,5 @@ def test_a_design_folder_ecu_runs_in_the_loop():
     np.testing.assert_array_equal(a.truth["beta"], b.truth["beta"])  # the same ECU, built two ways
     c = simulate(p, "two-track", man, controller="two-dof", design=TwoDofDesign(p.as_nominal(), always_active=True))
     assert np.max(np.abs(a.commands["yaw_moment"] - c.commands["yaw_moment"])) > 1.0  # K_beta 9 is not 5
+    # a law that always acts leaves the driver's drive torque alone (the paper's controller has no drive cut)
+    assert np.all(a["drive_share"] == 1.0) and np.all(a["active"] == 1.0)

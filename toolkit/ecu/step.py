@@ -82,6 +82,7 @@ OUTPUTS = Layout("ECU outputs", [
     Signal("beta_ref", "rad", "sideslip reference"),
     Signal("yaw_rate_ref", "rad/s", "yaw-rate reference"),
     Signal("active", "-", "authority of the stability law, 0 (the driver passed through) to 1"),
+    Signal("drive_share", "-", "share of the driver's drive torque let through, 1 (all) to 1 - drive_cut"),
     Signal("mu_est", "-", "friction estimate the reference is limited with"),
     Signal("fault_word", "-", "inputs in fault, one bit each (toolkit.ecu.guard.FAULT_BITS; bit 11: the ECU "
            "state was not finite and restarted this period); 0 when all is well"),
@@ -121,6 +122,7 @@ _CONTROLLER_CAL = (
     ("deactivate_ratio", "-", 0.0, 1.0, "hysteresis: share of the thresholds below which the law may end"),
     ("hold_time", "s", 0.001, 10.0, "time both errors stay below the off thresholds before the law ends"),
     ("blend_time", "s", 0.001, 10.0, "ramp time of the law's authority"),
+    ("drive_cut", "-", 0.0, 1.0, "share of the driver's drive torque taken away at the law's full authority"),
     ("steer_authority", "rad", 0.0, 1.0, "largest steer correction added to the driver's road-wheel angle"),
     ("steer_authority_rate", "rad/s", 0.0, 100.0, "largest rate of the steer correction"),
     ("mu_max", "-", 0.05, 2.0, "friction assumed without evidence of less"),
@@ -433,11 +435,15 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     # the law's integrators run only while it has authority
     law_n = ctl_mod.STATE.as_dict(z_law_n)
     law_n["xi_beta"], law_n["xi_yaw_rate"] = law_n["xi_beta"] * law_on, law_n["xi_yaw_rate"] * law_on
+    # the drive torque the rear motors may take from the rear tyres while the law acts against oversteer
+    drive_share, sup_n["oversteer"] = sup_mod.drive_cut(c, sup_st.oversteer, sup_n["blend"], law.yaw_rate_error,
+                                                         est["yaw_rate"], beta_slide, beta_rate, est["beta_std"], o)
     t_rl, t_rr = rear_torques(d, nz_cmd, o)
     out = OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std",
                                                    "gps_used")},
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
-                       beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"], mu_est=mu_est,
+                       beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
+                       drive_share=drive_share, mu_est=mu_est,
                        fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
@@ -500,6 +506,7 @@ def with_authority(y, u, zg, broken, o=NUMPY):
     ys["steer_cmd"] = ys["steer_cmd"] * k + INPUTS.as_dict(u)["steer_cmd_driver"] * (1.0 - k)
     for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active"):
         ys[name] = ys[name] * k
+    ys["drive_share"] = 1.0 - (1.0 - ys["drive_share"]) * k
     ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])
     ys["bad_samples"] = gs.bad_samples
     return OUTPUTS.pack(ys, o)

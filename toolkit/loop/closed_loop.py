@@ -79,6 +79,7 @@ EXTRA = Layout("loop signals", [
     Signal("active", "-", "authority of the stability law"),
     Signal("mu_est", "-", "the ECU's friction estimate"),
     Signal("fault_word", "-", "the ECU's fault word (toolkit.ecu.guard.FAULT_BITS)"),
+    Signal("drive_share", "-", "share of the driver's drive torque the ECU let through"),
 ])
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
 MEAS = Layout("loop readings", [
@@ -118,6 +119,7 @@ APPLIED = Layout("applied commands", [
     Signal("steer", "rad", "road-wheel angle applied over the last period"),
     Signal("yaw_moment", "N m", "yaw moment achieved over the last period"),
     Signal("steer_rate", "rad/s", "rate of the applied road-wheel angle"),
+    Signal("drive_cut", "-", "share of the driver's drive torque the ECU took away over the last period"),
 ])
 FLAGS = Layout("actuator flags", [Signal("steer_limited", "-", "last period's steer limit flag"),
                                   Signal("yaw_moment_limited", "-", "last period's motor limit flag")])
@@ -240,7 +242,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
 
     # 1. sensors sample the plant at the start of the period
     cmd_prev = COMMANDS.pack(o=o, steer=applied.steer, yaw_moment=applied.yaw_moment, speed_ref=speed_ref,
-                             drive_on=drive_on, steer_rate=applied.steer_rate)
+                             drive_on=drive_on * (1.0 - applied.drive_cut), steer_rate=applied.steer_rate)
     y = model.h(x, model.command_map(cmd_prev, x, sp), w, sp)
     tr = TRUTH.as_dict(y)
     # GPS latency: the truth a fix describes is latched into a slot when it is measured and read
@@ -266,7 +268,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     ecu = spec.ecu
     if ecu.kind == "driver":
         z_ecu_n = z_ecu
-        steer_cmd, nz_cmd = steer_drv, 0.0 * steer_drv
+        steer_cmd, nz_cmd, drive_share = steer_drv, 0.0 * steer_drv, 1.0 + 0.0 * steer_drv
         beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = fault_word = 0.0 * steer_drv
     else:
         valid = m["gps_valid"]
@@ -294,7 +296,8 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
             z_ecu_n = o.if_else(booting, z_start, z_ecu_n)
             out = {k: o.if_else(booting, 0.0 * v, v) for k, v in out.items()}
             out["steer_cmd"] = o.if_else(booting, steer_drv, out["steer_cmd"])
-        steer_cmd, nz_cmd = out["steer_cmd"], out["yaw_moment_cmd"]
+            out["drive_share"] = o.if_else(booting, 1.0, out["drive_share"])
+        steer_cmd, nz_cmd, drive_share = out["steer_cmd"], out["yaw_moment_cmd"], out["drive_share"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
         active, mu_est, fault_word = out["active"], out["mu_est"], out["fault_word"]
@@ -315,11 +318,12 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     rate = (a["steer"] - applied.steer) / dt
 
     # 4. the plant over the period
-    cmd = COMMANDS.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], speed_ref=speed_ref, drive_on=drive_on,
-                        steer_rate=rate)
+    cmd = COMMANDS.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], speed_ref=speed_ref,
+                        drive_on=drive_on * drive_share, steer_rate=rate)
     x_n = rk4_step(model, sp, x, cmd, w, dt, spec.n_sub)
     parts = {"plant": x_n, "actuator": z_act_n,
-             "applied": APPLIED.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_rate=rate),
+             "applied": APPLIED.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_rate=rate,
+                                            drive_cut=1.0 - drive_share),
              "flags": FLAGS.pack(o=o, steer_limited=a["steer_limited"], yaw_moment_limited=a["yaw_moment_limited"]),
              "slots": GPS_SLOTS.pack(nxt, o)}
     if spec.ecu.n_state:
@@ -331,7 +335,8 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
                        beta_ref=beta_ref, yaw_rate_ref=yaw_rate_ref, beta_est=beta_est, yaw_rate_est=yaw_rate_est,
                        yaw_moment_limited=a["yaw_moment_limited"], steer_cmd=steer_cmd, steer_limited=a["steer_limited"],
                        steer_limited_last=flags.steer_limited, yaw_moment_limited_last=flags.yaw_moment_limited,
-                       steer_rate=rate, active=active, mu_est=mu_est, fault_word=fault_word)
+                       steer_rate=rate, active=active, mu_est=mu_est, fault_word=fault_word,
+                       drive_share=drive_share)
     return z_n, y, extra, meas
 
 

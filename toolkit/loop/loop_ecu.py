@@ -167,7 +167,8 @@ class LoopEcu:
             y = ECU_OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias",
                                                              "beta_std", "gps_used")},
                                  steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
-                                 beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, mu_est=g["mu"],
+                                 beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, drive_share=1.0 + zero,
+                                 mu_est=g["mu"],
                                  fault_word=zero, bad_samples=zero)
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
@@ -176,6 +177,7 @@ class LoopEcu:
                 ys["steer_cmd"] = g["steer_cmd_driver"]
                 for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
                     ys[name] = zero
+                ys["drive_share"] = 1.0 + zero
                 y = ECU_OUTPUTS.pack(ys, o)
                 parts = CONTROL_STATE.as_dict(z_ctl_n)
                 law = ctl_mod.STATE.as_dict(parts["controller"])
