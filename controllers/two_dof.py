@@ -322,7 +322,8 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     zs = STATE.unpack(z)
     v = s.speed
     vm = o.fmax(v, d.min_speed)
-    beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22) = reference(d, vm, s.steer_driver, s.mu, o)
+    beta_lin, gamma_lin, limit, (a11, a12, a21, a22, b11, b21, b22) = _reference_parts(d, vm, s.steer_driver, s.mu, o)
+    beta_ss, gamma_ss = _limited(beta_lin, gamma_lin, limit, o)
     lag = float(np.exp(-d.dt / d.reference_tau))
     # the lagged static reference (seed 003 eq. 23 through the lag)
     sb, sr = zs.beta_ref, zs.yaw_rate_ref
@@ -334,7 +335,7 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
         lb, lr = zs.beta_linear, zs.yaw_rate_linear
         ub = lb + d.dt * (a11 * lb + a12 * lr + b11 * s.steer_driver)
         ur = lr + d.dt * (a21 * lb + a22 * lr + b21 * s.steer_driver)
-        over = o.fabs(ur) > yaw_rate_limit(d, vm, s.mu, o)
+        over = o.fabs(ur) > limit
         lb_next = o.if_else(over, beta_ss + (lb - beta_ss) * lag, ub)
         lr_next = o.if_else(over, gamma_ss + (lr - gamma_ss) * lag, ur)
         w = o.fmin(o.fmax(s.limit_share, 0.0), 1.0)
@@ -354,7 +355,7 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
         # the understeer side reaches towards 0 only while the driver asks less than the road gives (a shortfall
         # there is the model's; beyond, the car may need the law to turn it)
         lo, hi = o.fmin(xr, sr), o.fmax(xr, sr)
-        share = understeer_share(d, vm, s.steer_driver, s.mu, o)
+        share = _understeer_share(d, gamma_lin, limit, o)
         lo, hi = lo - share * o.fmax(lo, 0.0), hi - share * o.fmin(hi, 0.0)
         e_r = o.fmin(o.fmax(s.yaw_rate, lo), hi) - s.yaw_rate
     if np.isfinite(d.beta_error_max):
@@ -396,19 +397,30 @@ def reference(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY, limited: bool = Tr
     own steady state, no friction or rollover limit). The lateral acceleration the reference asks for is
     also held below :attr:`TwoDofDesign.ay_limit`. A design that carries a speed
     schedule reads coefficients and reference gains from its tables (the firmware's arithmetic)."""
+    beta_lin, gamma_lin, limit, coeffs = _reference_parts(d, vm, steer_driver, mu, o)
+    if not limited:
+        return beta_lin, gamma_lin, coeffs
+    return (*_limited(beta_lin, gamma_lin, limit, o), coeffs)
+
+
+def _reference_parts(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
+    """``(beta_lin, gamma_lin, limit, coefficients)``: the linear model's steady state for the driver's steer, the
+    reference's yaw-rate limit (:func:`yaw_rate_limit`) and the model's seven coefficients at ``vm``, each
+    computed once for the law, the reference band and the understeer share."""
     p = d.params
     if d.schedule is not None:
         a11, a12, a21, a22, b11, b21, b22, kb, kg = d.schedule.values(vm, o)
     else:
         kb, kg = steady_state_gains(p, vm)
         a11, a12, a21, a22, b11, b21, b22 = lateral_coefficients(p, vm)
-    beta_ss, gamma_ss = kb * steer_driver, kg * steer_driver
-    if not limited:
-        return beta_ss, gamma_ss, (a11, a12, a21, a22, b11, b21, b22)
-    limit = yaw_rate_limit(d, vm, mu, o)
-    mag = o.fabs(gamma_ss)
+    return kb * steer_driver, kg * steer_driver, yaw_rate_limit(d, vm, mu, o), (a11, a12, a21, a22, b11, b21, b22)
+
+
+def _limited(beta_lin, gamma_lin, limit, o=NUMPY):
+    """The static reference: the linear steady state scaled down to the yaw-rate limit where it is beyond it."""
+    mag = o.fabs(gamma_lin)
     scale = o.if_else(mag > limit, limit / o.fmax(mag, 1e-12), 1.0)
-    return beta_ss * scale, gamma_ss * scale, (a11, a12, a21, a22, b11, b21, b22)
+    return beta_lin * scale, gamma_lin * scale
 
 
 def understeer_share(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
@@ -418,8 +430,13 @@ def understeer_share(d: TwoDofDesign, vm, steer_driver, mu, o=NUMPY):
     (:func:`yaw_rate_limit`), falling linearly to 0 at the limit. Below it a car that yaws less than the
     nominal model is the model's error; at the limit (FMVSS 126's sine with dwell on a wet road) the law's
     help to turn the car is what its lateral displacement needs."""
-    _, gamma_lin, _ = reference(d, vm, steer_driver, mu, o, limited=False)
-    demand = o.fabs(gamma_lin) / o.fmax(yaw_rate_limit(d, vm, mu, o), 1e-12)
+    _, gamma_lin, limit, _ = _reference_parts(d, vm, steer_driver, mu, o)
+    return _understeer_share(d, gamma_lin, limit, o)
+
+
+def _understeer_share(d: TwoDofDesign, gamma_lin, limit, o=NUMPY):
+    """:func:`understeer_share` of the linear demand ``gamma_lin`` and the yaw-rate limit ``limit``."""
+    demand = o.fabs(gamma_lin) / o.fmax(limit, 1e-12)
     return d.understeer_band * o.fmin(o.fmax((1.0 - demand) / (1.0 - d.understeer_demand), 0.0), 1.0)
 
 

@@ -11,7 +11,7 @@ from evstab.plants.maneuvers import sine_lane_change, sine_with_dwell
 from evstab.plants.sensors import SensorConfig
 from evstab.studies.estimation_mb import SLIDE_HAND_WHEEL_DEG, wrong
 from evstab.toolkit.estimation import design_filter, run_estimator
-from evstab.toolkit.estimation.kalman import roll_compensation
+from evstab.toolkit.estimation.kinematic_path import roll_compensation
 from evstab.toolkit.loop.simulator import simulate
 
 DEG = np.pi / 180
@@ -35,7 +35,8 @@ def test_the_roll_gyro_compensates_the_dynamic_roll():
     # in the kinematic path's a_y, the roll gyro's complementary filter 0.24 (measured; the truth's
     # a_y is the multi-body car's own). Asserted: better by a third, and within 0.3 m/s^2.
     from evstab.studies.estimation_mb import drives
-    from evstab.toolkit.estimation.kalman import KINEMATIC, INPUTS, _lateral_acceleration
+    from evstab.toolkit.estimation.kalman import INPUTS
+    from evstab.toolkit.estimation.kinematic_path import KINEMATIC, lateral_acceleration
     p = load_vehicle("commonroad-3")
     man = drives(p)[1][1]
     log = simulate(p, "commonroad-mb:3", man, sensors=SENS, seed=3).log_columns()
@@ -46,7 +47,7 @@ def test_the_roll_gyro_compensates_the_dynamic_roll():
     for k in range(n):
         g = INPUTS.unpack(INPUTS.pack({"dt": 1e-3, "ay": log["ay"][k], "roll_rate": log["roll_rate"][k],
                                        "roll_rate_ok": 1.0}, fill=0.0))
-        ay[k], roll = _lateral_acceleration(d, g, KINEMATIC.unpack(ks), np)
+        ay[k], roll = lateral_acceleration(d, g, KINEMATIC.unpack(ks), np)
         ks = KINEMATIC.pack({"roll": roll}, fill=0.0)
     sel = (log["t"] > 2.0) & (log["t"] < 5.0)
     rms_gyro = np.sqrt(np.mean((ay - log["ay_true"])[sel] ** 2))

@@ -66,18 +66,18 @@ def test_a_vibrating_accelerometer_does_not_fake_a_slide(runs, name):
 def test_accelerometer_noise_estimate_and_share():
     """The noise is half the mean squared difference of successive readings: white noise of std s gives s^2;
     the low-passed share is 0 up to accel_noise_on and 1 from accel_noise_full (a smooth ramp between)."""
-    from evstab.toolkit.estimation import kalman
+    from evstab.toolkit.estimation import kalman, kinematic_path
     p = load_vehicle("compact-ev")
     nz = estimation_noise()
     d = design_filter("dakf", p)
-    lay = kalman.KINEMATIC_LP
+    lay = kinematic_path.KINEMATIC_LP
     rng = np.random.default_rng(3)
     for sd, share in ((0.1, 0.0), (nz.accel_noise_on * 0.95, 0.0), (0.45, None), (nz.accel_noise_full * 1.05, 1.0),
                       (4.0, 1.0)):
         ks = lay.as_dict(lay.zeros())
         g = kalman.INPUTS.unpack(kalman.INPUTS.pack({"dt": 1e-3}, fill=0.0))
         for a in sd * rng.standard_normal(20000):
-            lp, s, _, _ = kalman._accel_low_pass(d, SimpleNamespace(**ks), g, a, 0.0, 20.0, np.zeros(d.n), np)
+            lp, s, _, _ = kinematic_path.accel_low_pass(d, SimpleNamespace(**ks), g, a, 0.0, 20.0, np.zeros(d.n), np)
             ks.update(lp)
         est = float(np.sqrt(ks["ay_noise"]))
         assert abs(est / sd - 1.0) < 0.1  # a 1 s lag at 1 kHz averages ~2000 squares: 3 % std, 10 % is 3 sigma
@@ -144,7 +144,7 @@ def test_a_held_quantised_value_is_stuck_when_ay_leaves_it(excess, flagged):
     (0.0, 0.5, 0.5, 0.5),     # straight ahead (0 is of either sign): what the model asks
 ])
 def test_saturation_evidence(ay, model, plain, overpredict):
-    from evstab.toolkit.estimation.kalman import saturation_evidence
+    from evstab.toolkit.estimation.kinematic_path import saturation_evidence
     p = load_vehicle("compact-ev")
     off = design_filter("dakf", p)
     on = design_filter("dakf", p, dataclasses.replace(estimation_noise(), kinematic_overpredict=1.0))

@@ -117,7 +117,7 @@ def test_the_kinematic_path_on_the_table_blends_to_first_order():
     """A filter with the kinematic sideslip path on the ECU: the table also holds the model's sideslip
     row (continuous, what the path compares the accelerometer with), and the blend on E and G is the
     exact discretisation of the blended model up to second-order terms in the period."""
-    from evstab.toolkit.estimation import kalman
+    from evstab.toolkit.estimation import kinematic_path
     p = load_vehicle("compact-ev")
     d = EcuDesign.from_designs(design_filter("dakf", p, control=True, kinematic=True), TwoDofDesign(p.as_nominal()))
     f, tr = d.filter, d.filter.transition
@@ -134,7 +134,7 @@ def test_the_kinematic_path_on_the_table_blends_to_first_order():
     E, Gu = tr.matrices(v, T, 1.0)
     aT = np.abs(A * T).sum(axis=1).max()  # |A T| (infinity norm), 0.03 here
     for w in (0.0, 0.3, 1.0):
-        Eb, Gb = kalman._kinematic_transition(f, E, Gu, w, T, NUMPY)
+        Eb, Gb = kinematic_path.transition(f, E, Gu, w, T, NUMPY)
         Ab, Bb = A.copy(), B.copy()
         Ab[[ib, ir]] *= 1.0 - w
         Bb[[ib, ir]] *= 1.0 - w

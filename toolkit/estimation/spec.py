@@ -170,7 +170,7 @@ class NoiseSettings:
     from twice it (no tyre is saturated while the car hardly accelerates sideways)."""
     kinematic_ay_cutoff: float = 0.0
     """[Hz] Corner frequency of the two first-order lags through which the kinematic path reads a noisy
-    accelerometer (:func:`toolkit.estimation.kalman._accel_low_pass`); 0 = no low-pass (the readings as
+    accelerometer (:func:`toolkit.estimation.kinematic_path.accel_low_pass`); 0 = no low-pass (the readings as
     they come, whatever their noise)."""
     kinematic_overpredict: float = 0.0
     """1: the kinematic path counts a departure only where the linear model asks more lateral acceleration
