@@ -79,9 +79,9 @@ def plant_inputs(spec: cl.LoopSpec, U: np.ndarray, z0: np.ndarray, E: np.ndarray
             if name in applied:
                 u[c, 1:, k] = applied[name][:-1]  # the last period's (zero before the first)
                 u[c, :, nc + k] = applied[name]
-            elif name == "drive_on":  # this sample's, times the ECU's drive share: the last period's, this one's
-                share = E[c, :, ex("drive_share")]
-                u[c, :, k] = cols[name] * np.concatenate([[1.0], share[:-1]])
+            elif name == "drive_on":  # this sample's, times the ECU's drive share: the last period's as the loop
+                share = E[c, :, ex("drive_share")]  # holds it (1 less the cut it stores), this one's
+                u[c, :, k] = cols[name] * (1.0 - np.concatenate([[0.0], 1.0 - share[:-1]]))
                 u[c, :, nc + k] = cols[name] * share
             else:  # speed_ref: this sample's, in both
                 u[c, :, k] = u[c, :, nc + k] = cols[name]
