@@ -10,13 +10,15 @@ ECU as exported and not told the road, through
 * **ISO 3888-1**: the severe lane change with the path-following driver at 80 and 100 km/h
   on mu 1.0, 0.8 and 0.5 (peak sideslip);
 * **step steer into saturation**: 80 km/h, a hand-wheel step for 1.5 x the friction's lateral
-  acceleration on the nominal linear car, on mu 1.0 and 0.5 (peak sideslip).
+  acceleration on the nominal linear car, on mu 1.0 and 0.5, held for :data:`STEP_HOLD` s and driven
+  with the sensor noise of each of :data:`STEP_SEEDS` (the largest peak sideslip of the runs).
 
 Each case is run without control too, and a design must do **no worse than no control** on
 every one of them (:func:`no_worse`): on FMVSS 126 every criterion the uncontrolled car meets in
 a run, the design meets in that run; in the sideslip cases the peak stays within
 ``max(1.5 x the uncontrolled peak, 3 deg)`` where the uncontrolled car keeps its sideslip
-under :data:`SPIN_DEG`, and under ``SPIN_DEG`` where it does not. That is a constraint: a design that
+under :data:`SPIN_DEG`, and where it does not, the design holds the car: its peak stays below
+:data:`HELD_DEG` (the envelope's rule, :data:`toolkit.verdicts.envelope.HELD_DEG`). That is a constraint: a design that
 breaks it is not chosen, however small its cost (the design job's selection:
 :func:`toolkit.design.selection.limit_constrained`).
 """
@@ -30,9 +32,11 @@ import numpy as np
 from evstab.plants import G, is_multibody
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import make_maneuver, step_steer, steer_for_lateral_acceleration
+from ..verdicts.envelope import HELD_DEG
 
 SPIN_DEG = 10.0
 """Peak sideslip [deg] beyond which a limit run has lost the car."""
+
 SIDESLIP_FACTOR = 1.5
 SIDESLIP_FLOOR_DEG = 3.0
 """Where the uncontrolled car holds its sideslip, a design's peak may be up to
@@ -40,6 +44,16 @@ SIDESLIP_FLOOR_DEG = 3.0
 a controller may trade a little sideslip for path, never a slide)."""
 STEP_SATURATION = 1.5
 """The step steer asks the nominal linear car for this multiple of ``mu g``."""
+STEP_HOLD = 7.5
+"""[s] How long the step steer is held (from 0.5 s). A filter whose noise lets a held slide pass for a
+bias of the gyro (the yaw-rate disturbance's intensity ``q_d2`` six times the paper's) loses the
+sideslip 3 to 7 s into the step on mu 0.5: measured on compact-ev with the quick tuning's candidate
+K_beta 3.03, K_gamma 3.15, the peak over five noise seeds is 3.8 deg in a 4 s run; over ten seeds in an
+8 s run it is 12.6 deg (past 5 deg in 4 of the 10), against 2.9 deg for the same gains on the paper
+design's noise."""
+STEP_SEEDS = (0, 1, 2)
+"""The step's sensor-noise seeds: the slide of such a filter starts in some noise draws and not in
+others (see :data:`STEP_HOLD`)."""
 
 
 @dataclass(frozen=True)
@@ -88,24 +102,31 @@ def sideslip_result(peak: float) -> dict:
 
 def case_maneuver(p, case: LimitCase):
     """The manoeuvre of a sideslip case: ISO 3888-1 with the path-following driver, or the step steer
-    asking the nominal linear car for :data:`STEP_SATURATION` x ``mu g`` (from 0.5 s, 4 s long)."""
+    asking the nominal linear car for :data:`STEP_SATURATION` x ``mu g`` (from 0.5 s, held :data:`STEP_HOLD` s)."""
     v = case.speed_kmh / 3.6
     if case.kind == "iso3888-1":
         return make_maneuver("iso3888-1", p, v)
     return step_steer(v, steer_for_lateral_acceleration(p, v, STEP_SATURATION * case.mu * G), start=0.5,
-                      duration=4.0)
+                      duration=0.5 + STEP_HOLD)
 
 
 def _sideslip_run(p, plant, case: LimitCase, controller, estimator, design) -> dict:
+    """The peak sideslip of a case: ISO 3888-1 on seed 0; the step on each of :data:`STEP_SEEDS`, the
+    largest (without control the car reads no sensor: one run)."""
     from ..loop.simulator import SimulationError, simulate
     man = case_maneuver(p, case)
-    try:
-        r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=case.mu)), seed=0,
-                     controller=controller, estimator=estimator, design=design)
-        beta = np.abs(r.truth["beta"])
-        peak = float(np.degrees(np.max(beta))) if np.all(np.isfinite(beta)) else float("inf")
-    except SimulationError:  # rolled over or diverged: the car is lost
-        peak = float("inf")
+    seeds = STEP_SEEDS if case.kind == "step" and controller is not None else (0,)
+    peak = 0.0
+    for seed in seeds:
+        try:
+            r = simulate(p, plant, man, disturbances=Disturbances(friction=Friction(mu=case.mu)), seed=seed,
+                         controller=controller, estimator=estimator, design=design)
+            beta = np.abs(r.truth["beta"])
+            peak = max(peak, float(np.degrees(np.max(beta))) if np.all(np.isfinite(beta)) else float("inf"))
+        except SimulationError:  # rolled over or diverged: the car is lost
+            peak = float("inf")
+        if not np.isfinite(peak):
+            break
     return sideslip_result(peak)
 
 
@@ -164,9 +185,9 @@ def no_worse(row: dict, none: dict) -> tuple[bool, str]:
                         f"where no control meets it" for c, a in sorted(lost.items()))
         return not lost, why
     if none["spun"]:
-        ok = not row["spun"] or not np.isfinite(none["peak_beta_deg"]) or row["peak_beta_deg"] <= none["peak_beta_deg"]
-        return ok, "" if ok else f"peak sideslip {row['peak_beta_deg']:.1f} deg where no control reaches " \
-                                 f"{none['peak_beta_deg']:.1f} deg"
+        ok = row["peak_beta_deg"] < HELD_DEG
+        return ok, "" if ok else f"peak sideslip {row['peak_beta_deg']:.1f} deg, not below {HELD_DEG:g} deg, where " \
+                                 f"no control spins ({none['peak_beta_deg']:.1f} deg)"
     bound = max(SIDESLIP_FACTOR * none["peak_beta_deg"], SIDESLIP_FLOOR_DEG)
     ok = row["peak_beta_deg"] <= bound
     return ok, "" if ok else f"peak sideslip {row['peak_beta_deg']:.2f} deg > {bound:.2f} deg " \
