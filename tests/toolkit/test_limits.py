@@ -66,6 +66,19 @@ def test_the_step_case_asks_one_and_a_half_times_the_friction():
     assert lm.STEP_HOLD == 7.5 and man.duration == 8.0
 
 
+def test_no_control_is_no_worse_than_itself_where_it_spins():
+    # the design job judges every design's rows, no control's among them, against no control's: the car
+    # alone spinning (inf: rolled over) is what the others are held to, not a break of its own; a design
+    # with the same peak is judged by the rule and breaks it
+    none = [{"case": "step 80 km/h mu 1", "kind": "step", **lm.sideslip_result(float("inf"))},
+            {"case": "step 80 km/h mu 0.5", "kind": "step", **lm.sideslip_result(2.5)}]
+    j = lm.judge(none, none)
+    assert j["admissible"] and [r["no_worse_than_none"] for r in none] == [True, True]
+    assert j["limit_runs_passed"] == 1 and j["limit_runs"] == 2
+    twin = [dict(r) for r in none]
+    assert not lm.judge(twin, none)["admissible"] and not twin[0]["no_worse_than_none"]
+
+
 def test_the_step_counts_its_worst_noise_seed_and_a_lost_run(monkeypatch):
     # a stand-in for the loop whose peak sideslip depends on the noise seed: the step's peak is the
     # largest over STEP_SEEDS (a slide that starts in one noise draw is a slide), ISO 3888-1 runs seed 0
