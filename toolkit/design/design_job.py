@@ -464,10 +464,11 @@ def run_design(vehicle: str, out, *, quick: bool = False, executor: str = "local
               "decision_variables": "log of " + ", ".join(sw.DesignPoint.TUNED), "sigma_min_1_s": SIGMA_MIN,
               "bounds_factor": float(np.exp(BOUNDS)), "rounds": rounds, "limit_selection": selection,
               "limit_constraint": "no worse than no control on every limit manoeuvre (FMVSS 126 criteria run by "
-                                  "run; peak sideslip within max(1.5 x no control, 3 deg), under 5 deg where no "
-                                  "control spins, the step steer held 7.5 s on 3 noise seeds), as many limit runs held as the paper design, no sweep case "
-                                  f"lost, worst cost {BETTER_MARGIN:.0%} below the paper design's, the margin "
-                                  "constraint met; else the "
+                                  "run; peak sideslip within max(1.5 x no control, 3 deg), under "
+                                  f"{lm.HELD_DEG:g} deg where no control spins, the step steer held {lm.STEP_HOLD:g} s "
+                                  f"on {len(lm.STEP_SEEDS)} noise seeds), as many limit runs held as the paper design, "
+                                  f"no sweep case lost, worst cost {BETTER_MARGIN:.0%} below the paper design's, the "
+                                  "margin constraint met; else the "
                                   "tuning again with the FMVSS 126 runs the candidate missed held (the same box, "
                                   f"up to {CUT_ROUNDS} times), then with each parameter within a factor "
                                   + ", ".join(f"{np.exp(r):.3g}" for r in TRUST_RADII)

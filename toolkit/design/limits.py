@@ -32,11 +32,10 @@ import numpy as np
 from evstab.plants import G, is_multibody
 from evstab.plants.disturbances import Disturbances, Friction
 from evstab.plants.maneuvers import make_maneuver, step_steer, steer_for_lateral_acceleration
-from ..verdicts.envelope import HELD_DEG
+from ..verdicts.envelope import HELD_DEG, SLIDE_DEG
 
-SPIN_DEG = 10.0
-"""Peak sideslip [deg] beyond which a limit run has lost the car."""
-
+SPIN_DEG = SLIDE_DEG
+"""Peak sideslip [deg] beyond which a limit run has lost the car (the envelope's slide)."""
 SIDESLIP_FACTOR = 1.5
 SIDESLIP_FLOOR_DEG = 3.0
 """Where the uncontrolled car holds its sideslip, a design's peak may be up to
