@@ -1,7 +1,11 @@
-"""Actuators: active front steering (steer-by-wire) and the two rear in-wheel motors.
+"""Actuators: active front steering (a superposition gear) and the two rear in-wheel motors.
 
-* Steer: first-order lag ``tau`` towards the command, then rate limit and angle
-  limit (road-wheel angle).
+* Steer: the driver's angle reaches the road wheels through the column as it is; the gear adds
+  the correction the command asks beyond it, through a first-order lag ``tau`` and a rate limit,
+  and the sum is held within the road-wheel angle limit (at the limit the gear's angle is what
+  the rack leaves it). A command equal to the driver's angle makes no correction at all: a
+  passive ECU leaves the car exactly as the driver drives it. ``superposition=False`` models a
+  steer-by-wire servo of the whole angle instead (lag and rate limit on the driver's steer too).
 * Motors: the direct yaw moment is made by the rear torque difference,
   ``N_z = (T_rr - T_rl) t_r / (2 R_w)``, on top of the driver's longitudinal
   demand ``T_rl + T_rr = 2 T_mean``, which is kept (clipped to the limit); the
@@ -34,6 +38,9 @@ class ActuatorLimits:
     """Per-motor torque limit at the wheel [N m]; default the vehicle's max_motor_torque."""
     torque_rate_max: float = 10000.0
     """Per-motor torque rate limit [N m/s]."""
+    superposition: bool = True
+    """Active front steering by a superposition gear: the driver's angle reaches the wheels through the column
+    as it is, and the actuator (its lag and rate limit) makes only the correction the command asks beyond it."""
 
 
 STATE = Layout("actuator state", [
@@ -42,6 +49,7 @@ STATE = Layout("actuator state", [
 ])
 SIGNALS = Layout("actuator commands", [
     Signal("steer_cmd", "rad", "road-wheel angle command"),
+    Signal("steer_driver", "rad", "the driver's road-wheel angle through the column"),
     Signal("yaw_moment_cmd", "N m", "yaw moment command"),
     Signal("t_mean", "N m", "the driver's mean rear torque per wheel"),
     Signal("dt", "s", "the period"),
@@ -61,9 +69,12 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     steer, t_diff = zs.steer, zs.torque_diff
     s = SIGNALS.unpack(sig)
     target = o.fmin(o.fmax(s.steer_cmd, -lim.steer_max), lim.steer_max)
-    rate = (target - steer) / lim.steer_tau
+    base = s.steer_driver if lim.superposition else 0.0 * target
+    rate = (target - base - steer) / lim.steer_tau
     rate_c = o.fmin(o.fmax(rate, -lim.steer_rate_max), lim.steer_rate_max)
-    steer_new = o.fmin(o.fmax(steer + s.dt * rate_c, -lim.steer_max), lim.steer_max)
+    steer_state = steer + s.dt * rate_c
+    steer_new = o.fmin(o.fmax(base + steer_state, -lim.steer_max), lim.steer_max)
+    steer_state = steer_new - base
     steer_limited = o.if_else(o.fabs(s.steer_cmd) > lim.steer_max, 1.0,
                               o.if_else(o.fabs(rate) > lim.steer_rate_max, 1.0, 0.0))
     # allocation (as :func:`allocate`): common torque kept, difference cut to the room left
@@ -77,5 +88,5 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     slow = o.fabs(t_diff_new - want) > 1e-9 * o.fmax(1.0, o.fabs(want))
     limited = o.if_else(cut, 1.0, o.if_else(slow, 1.0, 0.0))
     achieved = yaw_moment_of(t_diff_new, p.wheel_radius, p.track_rear)
-    return STATE.pack(o=o, steer=steer_new, torque_diff=t_diff_new), \
+    return STATE.pack(o=o, steer=steer_state, torque_diff=t_diff_new), \
         OUTPUTS.pack(o=o, steer=steer_new, yaw_moment=achieved, steer_limited=steer_limited, yaw_moment_limited=limited)

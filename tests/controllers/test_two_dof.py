@@ -6,7 +6,7 @@ import control
 import numpy as np
 import pytest
 
-from evstab.controllers.actuators import ActuatorLimits, actuator_law
+from evstab.controllers.actuators import SIGNALS as ACT_SIGNALS, ActuatorLimits, actuator_law
 from evstab.controllers.two_dof import (OUTPUTS, SIGNALS, STATE, TwoDofDesign, allocate as allocate_commands,
                                         control_law, reference, understeer_share)
 from evstab.plants.errors import DesignError
@@ -87,13 +87,67 @@ def test_allocation_meets_torque_limits():
     lim = ActuatorLimits()
     for _ in range(200):
         nz, tm = rng.uniform(-8000, 8000), rng.uniform(-1200, 1200)
-        z, out = actuator_law(p, lim, 900.0, np.zeros(2), np.array([0.0, nz, tm, 1.0]))
+        z, out = actuator_law(p, lim, 900.0, np.zeros(2),
+                              ACT_SIGNALS.pack(steer_cmd=0.0, steer_driver=0.0, yaw_moment_cmd=nz, t_mean=tm, dt=1.0))
         t_mean = np.clip(tm, -900.0, 900.0)
         t_rl, t_rr = t_mean - z[1], t_mean + z[1]
         assert abs(t_rl) <= 900.0 + 1e-9 and abs(t_rr) <= 900.0 + 1e-9
         ach = (t_rr - t_rl) * p.track_rear / (2 * p.wheel_radius)
         assert ach == pytest.approx(out[1], abs=1e-9)
         assert (out[3] > 0.5) == (abs(ach - nz) > 1e-6)
+
+
+def _steer_run(lim, driver, cmd, dt=1e-3):
+    p = load_vehicle("compact-ev")
+    z, applied, states = np.zeros(2), [], []
+    for d, c in zip(driver, cmd):
+        z, out = actuator_law(p, lim, 900.0, z, ACT_SIGNALS.pack(steer_cmd=c, steer_driver=d, yaw_moment_cmd=0.0,
+                                                                 t_mean=0.0, dt=dt))
+        applied.append(out[0])
+        states.append(z[0])
+    return np.array(applied), np.array(states)
+
+
+def test_superposition_passes_the_driver_through_the_column():
+    # a passive ECU commands the driver's own angle: the superposition gear adds nothing, so the wheels turn
+    # exactly as the driver steers, however fast (a 2 Hz, 10 deg sweep is 126 deg/s, twice the servo's rate)
+    t = np.arange(0.0, 1.0, 1e-3)
+    driver = np.deg2rad(10.0) * np.sin(2 * np.pi * 2.0 * t)
+    applied, corr = _steer_run(ActuatorLimits(), driver, driver)
+    assert np.array_equal(applied, driver)
+    assert not corr.any()
+    # the steer-by-wire servo of the whole angle (superposition off) lags and rate-limits the driver's sweep
+    whole, _ = _steer_run(ActuatorLimits(superposition=False), driver, driver)
+    assert np.abs(whole - driver).max() > np.deg2rad(1.0)
+
+
+def test_superposition_correction_lags_and_is_rate_limited():
+    # a 2 deg correction asked on top of a driver holding 5 deg: the servo's first-order lag asks
+    # (2 deg - correction) / 0.03 s, beyond its 60 deg/s while the correction is below 0.2 deg, so the first four
+    # 1 ms samples move it 0.06 deg each (0.24 deg; the fourth asks 1.82 / 0.03 = 60.7 deg/s), and the fifth by the
+    # lag alone, 1.76 / 0.03 deg/s x 1 ms; the wheels read the driver's angle plus it
+    lim = ActuatorLimits()
+    n = 200
+    driver = np.full(n, np.deg2rad(5.0))
+    applied, corr = _steer_run(lim, driver, driver + np.deg2rad(2.0))
+    assert np.degrees(corr[:4]) == pytest.approx([0.06, 0.12, 0.18, 0.24], rel=1e-9)
+    assert np.degrees(corr[4]) == pytest.approx(0.24 + 1.76 / 30.0, rel=1e-9)
+    assert np.array_equal(applied, driver + corr)
+    # then 195 samples of the lag alone, each taking 1 ms / 30 ms of what is left
+    assert np.degrees(corr[-1]) == pytest.approx(2.0 - (1.76 - 1.76 / 30.0) * (29.0 / 30.0) ** 195, rel=1e-9)
+
+
+def test_superposition_holds_the_road_wheel_limit():
+    # a 3 deg correction on a driver at 30 deg; the driver then jumps to the 35 deg limit with the command still
+    # at 33: the rack stops at 35 deg (the gear's angle becomes 35 - 35 = 0), and from there the correction
+    # moves towards the -2 deg the command now asks, at the 60 deg/s rate limit (-0.06 deg per 1 ms)
+    lim = ActuatorLimits()
+    driver = np.deg2rad(np.r_[np.full(300, 30.0), np.full(5, 35.0)])
+    applied, corr = _steer_run(lim, driver, np.full(305, np.deg2rad(33.0)))
+    assert np.degrees(corr[299]) == pytest.approx(3.0, abs=1e-3)  # 300 samples of the 30 ms lag
+    assert np.degrees(applied[300]) == pytest.approx(35.0, rel=1e-15) and corr[300] == 0.0
+    assert np.degrees(corr[301]) == pytest.approx(-0.06, rel=1e-9)
+    assert np.abs(applied).max() <= np.deg2rad(35.0)
 
 
 def test_controller_tracks_on_the_nominal_bicycle():

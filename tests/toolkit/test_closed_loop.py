@@ -127,3 +127,17 @@ def test_a_design_folder_ecu_runs_in_the_loop():
     assert np.max(np.abs(a.commands["yaw_moment"] - c.commands["yaw_moment"])) > 1.0  # K_beta 9 is not 5
     # a law that always acts leaves the driver's drive torque alone (the paper's controller has no drive cut)
     assert np.all(a["drive_share"] == 1.0) and np.all(a["active"] == 1.0)
+
+
+def test_a_passive_ecu_leaves_the_car_as_the_driver_drives_it():
+    # the steer reaches the wheels through a superposition gear (controllers.actuators): an ECU that corrects
+    # nothing (controller "none", the driver passed through) makes the very car the driver makes alone (no ECU,
+    # no actuators), through a quick path-following lane change whose steer rate is beyond the servo's
+    p = load_vehicle("compact-ev")
+    man = iso3888_1(90 / 3.6, p.width)
+    alone = simulate(p, "two-track", man, controller=None, seed=0)
+    passive = simulate(p, "two-track", man, controller="none", seed=0)
+    assert np.abs(np.diff(passive.commands["steer"])).max() / 1e-3 > np.deg2rad(20.0)  # a quick driver
+    for k in ("x", "y", "yaw_rate", "beta"):
+        assert np.array_equal(alone.truth[k], passive.truth[k]), k
+    assert np.array_equal(passive.commands["steer"], passive.commands["steer_driver"])

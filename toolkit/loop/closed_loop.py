@@ -311,7 +311,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
         lim = spec.limits
         tmax = lim.torque_max if lim.torque_max is not None else (
             sp.max_motor_torque if "max_motor_torque" in spec.fields else 1e9)
-        z_act_n, av = actuator_law(sp, lim, tmax, z_act, ACT_SIGNALS.pack(o=o, steer_cmd=steer_cmd,
+        z_act_n, av = actuator_law(sp, lim, tmax, z_act, ACT_SIGNALS.pack(o=o, steer_cmd=steer_cmd, steer_driver=steer_drv,
                                                                           yaw_moment_cmd=nz_cmd, t_mean=0.0 * steer_cmd,
                                                                           dt=dt), o)
         a = ACT_OUTPUTS.as_dict(av)
