@@ -1,10 +1,11 @@
 """Actuators: active front steering (a superposition gear) and the two rear in-wheel motors.
 
 * Steer: the driver's angle reaches the road wheels through the column as it is; the gear adds
-  the correction the command asks beyond it, through a first-order lag ``tau`` and a rate limit,
+  the ECU's correction (its ``steer_correction`` output: the command less the driver's angle as the
+  ECU read it) through a first-order lag ``tau`` and a rate limit,
   and the sum is held within the road-wheel angle limit (at the limit the gear's angle is what
-  the rack leaves it). A command equal to the driver's angle makes no correction at all: a
-  passive ECU leaves the car exactly as the driver drives it. ``superposition=False`` models a
+  the rack leaves it). A passive ECU asks no correction at all and leaves the car exactly as
+  the driver drives it, whatever it read of the driver's angle. ``superposition=False`` models a
   steer-by-wire servo of the whole angle instead (lag and rate limit on the driver's steer too).
 * Motors: the direct yaw moment is made by the rear torque difference,
   ``N_z = (T_rr - T_rl) t_r / (2 R_w)``, on top of the driver's longitudinal
@@ -50,6 +51,7 @@ STATE = Layout("actuator state", [
 SIGNALS = Layout("actuator commands", [
     Signal("steer_cmd", "rad", "road-wheel angle command"),
     Signal("steer_driver", "rad", "the driver's road-wheel angle through the column"),
+    Signal("steer_correction", "rad", "the correction the ECU asks of the superposition gear"),
     Signal("yaw_moment_cmd", "N m", "yaw moment command"),
     Signal("t_mean", "N m", "the driver's mean rear torque per wheel"),
     Signal("dt", "s", "the period"),
@@ -68,14 +70,17 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     zs = STATE.unpack(z)
     steer, t_diff = zs.steer, zs.torque_diff
     s = SIGNALS.unpack(sig)
-    target = o.fmin(o.fmax(s.steer_cmd, -lim.steer_max), lim.steer_max)
+    # the superposition gear makes the ECU's correction on top of the column's angle (a driver's angle the ECU
+    # misread reaches the wheels as the driver steers it); a whole-angle servo follows the command
+    asked = s.steer_driver + s.steer_correction if lim.superposition else s.steer_cmd
+    target = o.fmin(o.fmax(asked, -lim.steer_max), lim.steer_max)
     base = s.steer_driver if lim.superposition else 0.0 * target
     rate = (target - base - steer) / lim.steer_tau
     rate_c = o.fmin(o.fmax(rate, -lim.steer_rate_max), lim.steer_rate_max)
     steer_state = steer + s.dt * rate_c
     steer_new = o.fmin(o.fmax(base + steer_state, -lim.steer_max), lim.steer_max)
     steer_state = steer_new - base
-    steer_limited = o.if_else(o.fabs(s.steer_cmd) > lim.steer_max, 1.0,
+    steer_limited = o.if_else(o.fabs(asked) > lim.steer_max, 1.0,
                               o.if_else(o.fabs(rate) > lim.steer_rate_max, 1.0, 0.0))
     # allocation (as :func:`allocate`): common torque kept, difference cut to the room left
     t_mean = o.fmin(o.fmax(s.t_mean, -torque_max), torque_max)

@@ -82,7 +82,7 @@ def first_steer_s(r) -> float:
 
 def straight_metrics(r, fault) -> dict:
     c = r.commands
-    added = np.degrees(np.abs(c["steer_cmd"] - c["steer_driver"]))
+    added = np.degrees(np.abs(c["steer"] - c["steer_driver"]))  # at the wheels, beyond the driver's angle
     nz = np.abs(c["yaw_moment_cmd"])
     finite = bool(np.all(np.isfinite(c["steer_cmd"])) and np.all(np.isfinite(c["yaw_moment_cmd"])))
     acting = (added > ACTING_STEER_DEG) | (nz > ACTING_YAW_MOMENT)

@@ -88,7 +88,8 @@ def test_allocation_meets_torque_limits():
     for _ in range(200):
         nz, tm = rng.uniform(-8000, 8000), rng.uniform(-1200, 1200)
         z, out = actuator_law(p, lim, 900.0, np.zeros(2),
-                              ACT_SIGNALS.pack(steer_cmd=0.0, steer_driver=0.0, yaw_moment_cmd=nz, t_mean=tm, dt=1.0))
+                              ACT_SIGNALS.pack(steer_cmd=0.0, steer_driver=0.0, steer_correction=0.0,
+                                               yaw_moment_cmd=nz, t_mean=tm, dt=1.0))
         t_mean = np.clip(tm, -900.0, 900.0)
         t_rl, t_rr = t_mean - z[1], t_mean + z[1]
         assert abs(t_rl) <= 900.0 + 1e-9 and abs(t_rr) <= 900.0 + 1e-9
@@ -101,8 +102,8 @@ def _steer_run(lim, driver, cmd, dt=1e-3):
     p = load_vehicle("compact-ev")
     z, applied, states = np.zeros(2), [], []
     for d, c in zip(driver, cmd):
-        z, out = actuator_law(p, lim, 900.0, z, ACT_SIGNALS.pack(steer_cmd=c, steer_driver=d, yaw_moment_cmd=0.0,
-                                                                 t_mean=0.0, dt=dt))
+        z, out = actuator_law(p, lim, 900.0, z, ACT_SIGNALS.pack(steer_cmd=c, steer_driver=d, steer_correction=c - d,
+                                                                 yaw_moment_cmd=0.0, t_mean=0.0, dt=dt))
         applied.append(out[0])
         states.append(z[0])
     return np.array(applied), np.array(states)

@@ -87,6 +87,8 @@ OUTPUTS = Layout("ECU outputs", [
     Signal("fault_word", "-", "inputs in fault, one bit each (toolkit.ecu.guard.FAULT_BITS; bit 11: the ECU "
            "state was not finite and restarted this period); 0 when all is well"),
     Signal("bad_samples", "-", "input samples the guard has replaced since start (saturates at 1e7)"),
+    Signal("steer_correction", "rad", "the steer a superposition gear adds to the driver's road-wheel angle: "
+           "steer_cmd less the driver's angle as the ECU read it (0 while the law is passive)"),
 ])
 FIRMWARE_METHODS = LOOP_METHODS
 
@@ -444,7 +446,8 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
                        drive_share=drive_share, mu_est=mu_est,
-                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est)
+                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est,
+                       steer_correction=steer_cmd - g["steer_cmd_driver"])
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
 
@@ -498,13 +501,13 @@ def restart(z_est, z_ctl, zg, start_est, start_ctl, o=NUMPY):
 
 def with_authority(y, u, zg, broken, o=NUMPY):
     """The outputs ``y`` with the guard's authority ``k`` applied (the steer command ``k`` of the law's
-    and ``1 - k`` of the driver's, the yaw moment and the wheel torques ``k`` times the law's: exact at
-    ``k = 1``) and its fault word and count."""
+    and ``1 - k`` of the driver's, the steer correction, the yaw moment and the wheel torques ``k`` times the
+    law's: exact at ``k = 1``) and its fault word and count."""
     gs = guard_mod.STATE.unpack(zg)
     k = gs.authority
     ys = OUTPUTS.as_dict(y)
     ys["steer_cmd"] = ys["steer_cmd"] * k + INPUTS.as_dict(u)["steer_cmd_driver"] * (1.0 - k)
-    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active"):
+    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active", "steer_correction"):
         ys[name] = ys[name] * k
     ys["drive_share"] = 1.0 - (1.0 - ys["drive_share"]) * k
     ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])

@@ -269,6 +269,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     if ecu.kind == "driver":
         z_ecu_n = z_ecu
         steer_cmd, nz_cmd, drive_share = steer_drv, 0.0 * steer_drv, 1.0 + 0.0 * steer_drv
+        steer_corr = 0.0 * steer_drv
         beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = fault_word = 0.0 * steer_drv
     else:
         valid = m["gps_valid"]
@@ -298,6 +299,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
             out["steer_cmd"] = o.if_else(booting, steer_drv, out["steer_cmd"])
             out["drive_share"] = o.if_else(booting, 1.0, out["drive_share"])
         steer_cmd, nz_cmd, drive_share = out["steer_cmd"], out["yaw_moment_cmd"], out["drive_share"]
+        steer_corr = out["steer_correction"]
         beta_ref, yaw_rate_ref, beta_est, yaw_rate_est = out["beta_ref"], out["yaw_rate_ref"], out["beta"], \
             out["yaw_rate"]
         active, mu_est, fault_word = out["active"], out["mu_est"], out["fault_word"]
@@ -312,6 +314,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
         tmax = lim.torque_max if lim.torque_max is not None else (
             sp.max_motor_torque if "max_motor_torque" in spec.fields else 1e9)
         z_act_n, av = actuator_law(sp, lim, tmax, z_act, ACT_SIGNALS.pack(o=o, steer_cmd=steer_cmd, steer_driver=steer_drv,
+                                                                          steer_correction=steer_corr,
                                                                           yaw_moment_cmd=nz_cmd, t_mean=0.0 * steer_cmd,
                                                                           dt=dt), o)
         a = ACT_OUTPUTS.as_dict(av)
