@@ -46,7 +46,8 @@ def test_simulator_compiled_loop_and_linearisation_all_run_the_one_loop_step(mon
 @pytest.mark.parametrize("controller", ["two-dof", "two-dof-true", "yaw-pi", "none"])
 def test_compiled_loop_equals_numpy_loop(controller):
     p = load_vehicle("micro-ev")
-    man = step_steer(25 / 3.6, np.radians(5.0), start=0.3, duration=1.5)
+    # a step of 10 deg at 25 km/h, into the law's band (the 2-DOF law acts: up to 230 N m and 0.8 deg of steer)
+    man = step_steer(25 / 3.6, np.radians(10.0), start=0.3, duration=1.5)
     dist = Disturbances(wind=default_wind(p, 0.5, 1.0))
     sens = SensorConfig(gyro_bias=0.002, gps_outages=((0.8, 1.1),))
     r = simulate(p, "two-track", man, controller=controller, disturbances=dist, sensors=sens, seed=3)
