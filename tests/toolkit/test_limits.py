@@ -203,16 +203,24 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
         # displacement's instant instead of the series' end: 1.8e-7 m apart at most over the series on
         # both surfaces (measured: the filter's backward pass from the cut end) -> 1e-6 m
         assert r.displacement(a) == pytest.approx(scored[r.label], abs=1e-6)
-    # d/d log K_beta on the first run, against central differences of 1e-4 in log space: the loop has
-    # small discontinuities (gates, saturations, the reference band's switch to the limit), and one lies
-    # within 1e-3 below the paper design here: central differences of 1e-3 give -0.0196 (the step up alone
-    # -0.0352), of 1e-4 -0.03511 against the derivative's -0.03514 (0.09 %, measured; 1e-5 is 5 % off
-    # with rounding) -> 1 %
-    r, (a, da) = pick[0], acc[0]
-    h, e = 1e-4, np.eye(6)[0]
-    up, down = (rc.lateral_acceleration(phi + s * h * e, [r.run], [r.rest])[0][0] for s in (1.0, -1.0))
-    fd = (r.displacement(up) - r.displacement(down)) / (2 * h)
-    assert r.displacement(da[:, 0]) == pytest.approx(fd, rel=1e-2)
+    # d/d log K_beta against central differences of 1e-3 in log space, on the runs where the displacement is
+    # smooth there. The loop has small discontinuities (gates, saturations, the reference band's switch to the
+    # limit): one may lie within 1e-3 of the paper design (on the first run, between +1e-4 and +3e-4, where the
+    # step up jumps to -4.3 m per unit), and below 1e-4 rounding in the long rollout moves the differences by
+    # percents (measured: central differences of 1e-5 give -0.0180 and -0.0529 on the first and last runs, against
+    # derivatives of -0.0183 and -0.0576). A run is smooth
+    # where the one-sided differences agree within 1 %; the derivative then equals the central difference
+    # within 1 % (measured 0.13 % on the last run: -0.05762 against -0.05754)
+    h, e = 1e-3, np.eye(6)[0]
+    smooth = 0
+    for r, (a, da) in zip(pick, acc):
+        up, down = (rc.lateral_acceleration(phi + s * h * e, [r.run], [r.rest])[0][0] for s in (1.0, -1.0))
+        d_up, d_down = (r.displacement(up) - r.displacement(a)) / h, (r.displacement(a) - r.displacement(down)) / h
+        fd = 0.5 * (d_up + d_down)
+        if abs(d_up - d_down) <= 1e-2 * abs(fd):
+            smooth += 1
+            assert r.displacement(da[:, 0]) == pytest.approx(fd, rel=1e-2)
+    assert smooth >= 1  # at least one of the two runs is checked
     assert abs(fd) > 0.01  # the gain moves the displacement: the check is not of a flat function
 
 
