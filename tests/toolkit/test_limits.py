@@ -239,3 +239,26 @@ def test_the_tightest_displacement_runs_are_held_and_misses_are_named():
     assert [r.label for r in held] == ["fmvss126 80 km/h mu 1, 100 deg left", "fmvss126 80 km/h mu 1, 100 deg right",
                                        "fmvss126 80 km/h mu 1, 120 deg left"]
     assert lm.missed_displacement(rows, none) == ["fmvss126 80 km/h mu 1, 100 deg right"]
+
+
+def test_a_case_the_paper_design_fails_does_not_excuse_another():
+    # the limit check asks a candidate to be no worse than no control case by case, where the paper design is:
+    # the paper design worse in the step on mu 1 (7.0 deg where no control spins), the candidate in the step
+    # on mu 0.5 (6.0 deg where no control spins) -> the mu 0.5 case is named; worse only where the paper design
+    # is too -> nothing
+    spin = {"kind": "step", "peak_beta_deg": 90.0, "spun": True}
+    none = [dict(spin, case="step 80 km/h mu 1"), dict(spin, case="step 80 km/h mu 0.5")]
+
+    def rows(b1, b2):
+        return [{"case": "step 80 km/h mu 1", "kind": "step", "peak_beta_deg": b1, "spun": False},
+                {"case": "step 80 km/h mu 0.5", "kind": "step", "peak_beta_deg": b2, "spun": False}]
+
+    paper = rows(7.0, 2.0)
+    assert not lm.judge(paper, none)["admissible"]  # the paper design is not admissible as a whole
+    cand = rows(2.0, 6.0)
+    lm.judge(cand, none)
+    assert lm.newly_worse(cand, paper, none) == [
+        "step 80 km/h mu 0.5: peak sideslip 6.0 deg, not below 5 deg, where no control spins (90.0 deg)"]
+    cand = rows(8.0, 4.99)
+    lm.judge(cand, none)
+    assert lm.newly_worse(cand, paper, none) == []

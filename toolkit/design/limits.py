@@ -212,6 +212,14 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
             "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
 
 
+def newly_worse(rows: list[dict], paper_rows: list[dict], none_rows: list[dict]) -> list[str]:
+    """The limit cases where a design is worse than no control and the paper design is not, each as
+    ``case: why`` (the rows judged by :func:`judge` first; same case order). A candidate may be worse than no
+    control only where the paper design is too: a case the paper design fails does not excuse another."""
+    return [f"{r['case']}: {no_worse(r, n)[1]}" for r, q, n in zip(rows, paper_rows, none_rows)
+            if q["no_worse_than_none"] and not r["no_worse_than_none"]]
+
+
 DISPLACEMENT_TAIL = 1.0
 """[s] A displacement run of the tuning is rolled out this long past BOS + 1.07 s (not to the series'
 end: half the work), enough for the scorer's 6 Hz zero-phase filter to have let go of what follows."""

@@ -132,7 +132,8 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
     """The tuned design under the limit constraint (:mod:`toolkit.design.limits`).
 
     The tuning's candidate is driven through the limit manoeuvres; it is accepted when it is no
-    worse than no control on every limit case (where the paper design is), passes FMVSS 126 and
+    worse than no control on every limit case where the paper design is no worse (case by case,
+    :func:`toolkit.design.limits.newly_worse`), passes FMVSS 126 and
     as many limit runs as the paper design, loses no case of the sweep the paper design holds,
     beats the paper design's worst case by :data:`BETTER_MARGIN` and meets the margin constraint
     (:func:`toolkit.design.stability.margins_admissible`; the tuning holds its candidates to it already). Otherwise the tuning runs again
@@ -183,8 +184,9 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
         worst = entry["worst_cost"]
         lost = sorted(r["case_id"] for r in rows if r["case_id"] in paper_stable and not r["stable"])
         why = []
-        if jp["admissible"] and not j["admissible"]:
-            why.append("worse than no control: " + "; ".join(j["worse_than_none"]))
+        newly = lm.newly_worse(lim, paper_lim, none)
+        if newly:  # case by case: where the paper design is no worse than no control, the candidate must not be
+            why.append("worse than no control: " + "; ".join(newly))
         if jp["fmvss126_pass"] and not j["fmvss126_pass"]:
             why.append("fails FMVSS 126")
         if j["limit_runs_passed"] < jp["limit_runs_passed"]:
