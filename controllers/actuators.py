@@ -77,9 +77,7 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     base = s.steer_driver if lim.superposition else 0.0 * target
     rate = (target - base - steer) / lim.steer_tau
     rate_c = o.fmin(o.fmax(rate, -lim.steer_rate_max), lim.steer_rate_max)
-    steer_state = steer + s.dt * rate_c
-    steer_new = o.fmin(o.fmax(base + steer_state, -lim.steer_max), lim.steer_max)
-    steer_state = steer_new - base
+    steer_new = o.fmin(o.fmax(base + (steer + s.dt * rate_c), -lim.steer_max), lim.steer_max)
     steer_limited = o.if_else(o.fabs(asked) > lim.steer_max, 1.0,
                               o.if_else(o.fabs(rate) > lim.steer_rate_max, 1.0, 0.0))
     # allocation (as :func:`allocate`): common torque kept, difference cut to the room left
@@ -93,5 +91,5 @@ def actuator_law(p: VehicleParams, lim: ActuatorLimits, torque_max: float, z, si
     slow = o.fabs(t_diff_new - want) > 1e-9 * o.fmax(1.0, o.fabs(want))
     limited = o.if_else(cut, 1.0, o.if_else(slow, 1.0, 0.0))
     achieved = yaw_moment_of(t_diff_new, p.wheel_radius, p.track_rear)
-    return STATE.pack(o=o, steer=steer_state, torque_diff=t_diff_new), \
+    return STATE.pack(o=o, steer=steer_new - base, torque_diff=t_diff_new), \
         OUTPUTS.pack(o=o, steer=steer_new, yaw_moment=achieved, steer_limited=steer_limited, yaw_moment_limited=limited)

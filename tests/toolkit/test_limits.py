@@ -257,8 +257,8 @@ def test_a_case_the_paper_design_fails_does_not_excuse_another():
     assert not lm.judge(paper, none)["admissible"]  # the paper design is not admissible as a whole
     cand = rows(2.0, 6.0)
     lm.judge(cand, none)
-    assert lm.newly_worse(cand, paper, none) == [
+    assert lm.newly_worse(cand, paper) == [
         "step 80 km/h mu 0.5: peak sideslip 6.0 deg, not below 5 deg, where no control spins (90.0 deg)"]
     cand = rows(8.0, 4.99)
     lm.judge(cand, none)
-    assert lm.newly_worse(cand, paper, none) == []
+    assert lm.newly_worse(cand, paper) == []

@@ -199,7 +199,7 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
     worse, passed, total = [], 0, 0
     for r, n in zip(rows, none_rows):
         ok, why = (True, "") if r is n else no_worse(r, n)
-        r["no_worse_than_none"] = ok
+        r["no_worse_than_none"], r["_worse_why"] = ok, why
         if not ok:
             worse.append(f"{r['case']}: {why}")
         if r["kind"] == "fmvss126":
@@ -212,11 +212,11 @@ def judge(rows: list[dict], none_rows: list[dict]) -> dict:
             "fmvss126_pass": all(r["pass"] for r in rows if r["kind"] == "fmvss126")}
 
 
-def newly_worse(rows: list[dict], paper_rows: list[dict], none_rows: list[dict]) -> list[str]:
+def newly_worse(rows: list[dict], paper_rows: list[dict]) -> list[str]:
     """The limit cases where a design is worse than no control and the paper design is not, each as
     ``case: why`` (the rows judged by :func:`judge` first; same case order). A candidate may be worse than no
     control only where the paper design is too: a case the paper design fails does not excuse another."""
-    return [f"{r['case']}: {no_worse(r, n)[1]}" for r, q, n in zip(rows, paper_rows, none_rows)
+    return [f"{r['case']}: {r['_worse_why']}" for r, q in zip(rows, paper_rows)
             if q["no_worse_than_none"] and not r["no_worse_than_none"]]
 
 

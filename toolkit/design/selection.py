@@ -184,7 +184,7 @@ def limit_constrained(cfg, cases, rows_paper, cand, rows_cand, retune, limits_st
         worst = entry["worst_cost"]
         lost = sorted(r["case_id"] for r in rows if r["case_id"] in paper_stable and not r["stable"])
         why = []
-        newly = lm.newly_worse(lim, paper_lim, none)
+        newly = lm.newly_worse(lim, paper_lim)
         if newly:  # case by case: where the paper design is no worse than no control, the candidate must not be
             why.append("worse than no control: " + "; ".join(newly))
         if jp["fmvss126_pass"] and not j["fmvss126_pass"]:

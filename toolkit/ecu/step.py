@@ -446,8 +446,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
                        drive_share=drive_share, mu_est=mu_est,
-                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est,
-                       steer_correction=steer_cmd - g["steer_cmd_driver"])
+                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est, steer_correction=0.0 * mu_est)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
 
@@ -502,12 +501,15 @@ def restart(z_est, z_ctl, zg, start_est, start_ctl, o=NUMPY):
 def with_authority(y, u, zg, broken, o=NUMPY):
     """The outputs ``y`` with the guard's authority ``k`` applied (the steer command ``k`` of the law's
     and ``1 - k`` of the driver's, the steer correction, the yaw moment and the wheel torques ``k`` times the
-    law's: exact at ``k = 1``) and its fault word and count."""
+    law's: exact at ``k = 1``; the steer correction is the law's steer less the driver's angle the ECU read,
+    set here for every ECU kind) and its fault word and count."""
     gs = guard_mod.STATE.unpack(zg)
     k = gs.authority
     ys = OUTPUTS.as_dict(y)
-    ys["steer_cmd"] = ys["steer_cmd"] * k + INPUTS.as_dict(u)["steer_cmd_driver"] * (1.0 - k)
-    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active", "steer_correction"):
+    driver = INPUTS.as_dict(u)["steer_cmd_driver"]
+    ys["steer_correction"] = (ys["steer_cmd"] - driver) * k
+    ys["steer_cmd"] = ys["steer_cmd"] * k + driver * (1.0 - k)
+    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active"):
         ys[name] = ys[name] * k
     ys["drive_share"] = 1.0 - (1.0 - ys["drive_share"]) * k
     ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])

@@ -269,7 +269,6 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     if ecu.kind == "driver":
         z_ecu_n = z_ecu
         steer_cmd, nz_cmd, drive_share = steer_drv, 0.0 * steer_drv, 1.0 + 0.0 * steer_drv
-        steer_corr = 0.0 * steer_drv
         beta_ref = yaw_rate_ref = beta_est = yaw_rate_est = active = mu_est = fault_word = 0.0 * steer_drv
     else:
         valid = m["gps_valid"]

@@ -169,13 +169,13 @@ class LoopEcu:
                                  steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
                                  beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, drive_share=1.0 + zero,
                                  mu_est=g["mu"],
-                                 fault_word=zero, bad_samples=zero, steer_correction=c.steer - g["steer_cmd_driver"])
+                                 fault_word=zero, bad_samples=zero, steer_correction=zero)
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
                 ys = ECU_OUTPUTS.as_dict(y)
                 ys["steer_cmd"] = g["steer_cmd_driver"]
-                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "steer_correction"):
+                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
                     ys[name] = zero
                 ys["drive_share"] = 1.0 + zero
                 y = ECU_OUTPUTS.pack(ys, o)
