@@ -34,7 +34,7 @@ from evstab.toolkit.design.design_job import default_design_document
 from evstab.toolkit.ecu.step import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import export_design
 from evstab.toolkit.firmware.fmu import FMU_NAME, MODEL_IDENTIFIER, VR_OUTPUT
-from evstab.toolkit.verdicts.fmvss126 import SPEED, amplitudes, find_a, score_swd
+from evstab.toolkit.verdicts.fmvss126 import SPEED, STEER_START, amplitudes, find_a, score_swd
 
 MU = 1.0
 GPS_EVERY = 200
@@ -56,7 +56,7 @@ def run_swd(p, fmu_path, amplitude_deg: float, mu: float = MU, control: bool = T
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    man = sine_with_dwell(SPEED, np.deg2rad(amplitude_deg) / p.steering_ratio)
+    man = sine_with_dwell(SPEED, np.deg2rad(amplitude_deg) / p.steering_ratio, start=STEER_START)
     model = get_plant("two-track")
     plant = CompiledPlant(model, p, dt)
     x = model.initial_state(p, man.speed)
