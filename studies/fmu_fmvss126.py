@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 from evstab.plants import get_plant, load_vehicle
-from evstab.plants.maneuvers import sine_with_dwell
 from evstab.plants.model import COMMANDS, DISTURBANCES, TRUTH
 from evstab.studies._common import cli, out_dir, write_table
 from evstab.toolkit.kernels.compiled import CompiledPlant
@@ -34,7 +33,7 @@ from evstab.toolkit.design.design_job import default_design_document
 from evstab.toolkit.ecu.step import INPUTS, OUTPUTS
 from evstab.toolkit.firmware.export import export_design
 from evstab.toolkit.firmware.fmu import FMU_NAME, MODEL_IDENTIFIER, VR_OUTPUT
-from evstab.toolkit.verdicts.fmvss126 import SPEED, STEER_START, amplitudes, find_a, score_swd
+from evstab.toolkit.verdicts.fmvss126 import amplitudes, find_a, score_swd, series_maneuver
 
 MU = 1.0
 GPS_EVERY = 200
@@ -56,7 +55,7 @@ def run_swd(p, fmu_path, amplitude_deg: float, mu: float = MU, control: bool = T
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    man = sine_with_dwell(SPEED, np.deg2rad(amplitude_deg) / p.steering_ratio, start=STEER_START)
+    man = series_maneuver(p, amplitude_deg)
     model = get_plant("two-track")
     plant = CompiledPlant(model, p, dt)
     x = model.initial_state(p, man.speed)

@@ -271,12 +271,11 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
     lateral acceleration to the displacement at BOS + 1.07 s. Runs on another plant (the two-track
     of a multi-body design's nominal file) are left to the check."""
     from ..loop import closed_loop as cl
-    from ..verdicts.fmvss126 import (DISPLACEMENT_FROM_A, LATERAL_DISPLACEMENT_MIN, SPEED, STEER_START,
-                                     T_DISPLACEMENT, _timing, displacement_map, find_a)
+    from ..verdicts.fmvss126 import (DISPLACEMENT_FROM_A, LATERAL_DISPLACEMENT_MIN, T_DISPLACEMENT, _timing,
+                                     displacement_map, find_a, series_maneuver)
     from ..loop.simulator import _loop, _setup
     from .tuning import DisplacementRun
     from evstab.plants.errors import DesignError
-    from evstab.plants.maneuvers import sine_with_dwell
     a_cache = {} if a_cache is None else a_cache
     p = cfg.nominal
     out = []
@@ -299,7 +298,7 @@ def displacement_runs(cfg, none_rows: list[dict], a_cache: dict | None = None, a
             if amp < DISPLACEMENT_FROM_A * a_deg - 1e-9 or (failed | failed_also) & {"lateral_displacement", "rollover"}:
                 continue
             sign = 1.0 if direction == "left" else -1.0
-            man = sine_with_dwell(SPEED, sign * np.deg2rad(amp) / p.steering_ratio, start=STEER_START)  # run_series's
+            man = series_maneuver(p, sign * amp)
             U, z0, pv = cl.loop_inputs(spec, params, man, dist, sensors, 0)
             t = np.arange(U.shape[0]) * cfg.dt
             hw = man.steer(t) * p.steering_ratio

@@ -256,6 +256,12 @@ def find_a(p: VehicleParams, plant: str = "two-track", mu: float | None = None, 
     return float(np.mean(vals))
 
 
+def series_maneuver(p: VehicleParams, amplitude_deg: float):
+    """The series' sine with dwell of hand-wheel amplitude ``amplitude_deg`` [deg] (+ steers left first) for
+    ``p``: at :data:`SPEED`, the steer :data:`STEER_START` s after the run, and the ECU, start."""
+    return sine_with_dwell(SPEED, np.deg2rad(amplitude_deg) / p.steering_ratio, start=STEER_START)
+
+
 def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu: float | None = None,
                plant: str = "two-track", seed: int = 0, a_deg: float | None = None, quick: bool = False,
                design=None, compiled: bool = True):
@@ -301,8 +307,7 @@ def run_series(p: VehicleParams, controller="none", estimator: str = "dakf", mu:
     if quick:
         amps = [x for x in amps if x >= DISPLACEMENT_FROM_A * a_deg - 1e-9][:2]
     rows, failed_all = [], set()
-    runs = [(amp, direction, label, sine_with_dwell(SPEED, direction * np.deg2rad(amp) / p.steering_ratio,
-                                                               start=STEER_START))
+    runs = [(amp, direction, label, series_maneuver(p, direction * amp))
             for amp in amps for direction, label in ((1.0, "left"), (-1.0, "right"))]
     dist = Disturbances(friction=Friction(mu=mu))
     if compiled and controller != "none":  # the whole series through the compiled loop in one call
