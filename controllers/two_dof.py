@@ -156,8 +156,11 @@ class TwoDofDesign:
     demand_tau: float = 0.15
     """Lag [s] of the linear lateral-acceleration demand the measured one is compared with."""
     rollover_share: float = 0.7
-    """The reference's lateral acceleration stays below this share of the static rollover threshold
-    ``g (t_f + t_r) / (4 h)`` (when the vehicle file gives the tracks and the CG height)."""
+    """The reference's lateral acceleration stays below this share of the quasi-static rollover threshold
+    (:attr:`plants.params.VehicleParams.rollover_threshold`, when the vehicle file gives the tracks and the
+    CG height; the rigid car's ``g (t_f + t_r) / (4 h)`` lowered by the body's roll where the file gives
+    the roll data). The margin is for the transient: a step of lateral acceleration overshoots the body's
+    steady roll by the lightly damped roll mode (damping ratio 0.28-0.35 on the bundled cars)."""
     slip_max: float = 0.1
     """Rear wheel slip [-] beyond which the yaw moment is withdrawn (slip control)."""
     slip_onset: float = 0.5
@@ -260,12 +263,11 @@ class TwoDofDesign:
 
     @property
     def ay_limit(self):
-        """Largest lateral acceleration [m/s^2] the reference asks for: ``rollover_share`` of the static
-        rollover threshold, or no limit without tracks and CG height."""
-        p = self.params
-        if p.cg_height is None or p.track_front is None or p.track_rear is None or not p.cg_height > 0:
-            return 1e6
-        return self.rollover_share * G * (p.track_front + p.track_rear) / (4.0 * p.cg_height)
+        """Largest lateral acceleration [m/s^2] the reference asks for: ``rollover_share`` of the
+        quasi-static rollover threshold (:attr:`plants.params.VehicleParams.rollover_threshold`: the
+        body's roll counted where the vehicle file gives it), or no limit without tracks and CG height."""
+        threshold = self.params.rollover_threshold
+        return 1e6 if threshold is None else self.rollover_share * threshold
 
     @property
     def kd(self) -> np.ndarray:

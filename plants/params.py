@@ -184,6 +184,13 @@ class VehicleParams:
                     f"= {self.sprung_mass!r} * {self.roll_arm!r}^2 = {least:.4g} kg m^2: the inertia about the "
                     "roll axis is the sprung mass's own plus m_s h^2 (parallel-axis theorem); a value below "
                     "that is the inertia about the sprung mass's CG")
+        if self.roll_stiffness is not None and self.sprung_mass is not None and self.roll_arm is not None:
+            gravity = self.sprung_mass * G * self.roll_arm
+            if not self.roll_stiffness > gravity:
+                raise ParameterError(
+                    f"{n}: field 'roll_stiffness' = {self.roll_stiffness!r} N m/rad does not exceed the rolled body's "
+                    f"gravity moment sprung_mass * g * roll_arm = {gravity:.4g} N m/rad: the suspension cannot hold "
+                    "the body up (roll_stiffness is the suspension's own, without the gravity moment)")
         if self.width is not None:
             for k in ("track_front", "track_rear"):
                 t = getattr(self, k)
@@ -245,6 +252,36 @@ class VehicleParams:
         """Speed above which an oversteering car is unstable sqrt(-1/G) [m/s]; inf otherwise."""
         g = self.stability_factor
         return math.sqrt(-1.0 / g) if g < 0.0 else math.inf
+
+    @property
+    def roll_gradient(self) -> float | None:
+        """Steady body roll per lateral acceleration [rad per m/s^2], or None without the roll data.
+
+        The sprung mass's roll moment balances the suspension's, with the gravity moment of the rolled
+        body (``roll_stiffness`` is the suspension's, as in the two-track model):
+        ``K phi = m_s h_s a_y + m_s g h_s phi``, so ``phi / a_y = m_s h_s / (K - m_s g h_s)``;
+        ``K > m_s g h_s`` is checked when the file is read."""
+        if self.sprung_mass is None or self.roll_arm is None or self.roll_stiffness is None:
+            return None
+        msh = self.sprung_mass * self.roll_arm
+        return msh / (self.roll_stiffness - msh * G)
+
+    @property
+    def rollover_threshold(self) -> float | None:
+        """Quasi-static rollover threshold [m/s^2], or None without the CG height and the tracks.
+
+        The steady lateral acceleration at which the inner wheels lift: the overturning moment about the
+        outer contact line, ``m a_y h`` plus the rolled sprung mass's shift ``m_s g h_s phi``, equals the
+        weight's ``m g t / 2`` (``t`` the mean track), with ``phi`` from :attr:`roll_gradient`:
+        ``a_y = m g t / (2 (m h + m_s g h_s phi / a_y))`` (T. D. Gillespie, *Fundamentals of Vehicle
+        Dynamics*, SAE, 1992, ch. 9, the suspended vehicle). Without the roll data it is the rigid car's
+        static stability factor ``g t / (2 h)``; the body's roll lowers it, by 7-13 % on the bundled cars."""
+        if self.cg_height is None or self.track_front is None or self.track_rear is None or not self.cg_height > 0:
+            return None
+        t = 0.5 * (self.track_front + self.track_rear)
+        k = self.roll_gradient
+        shift = 0.0 if k is None else self.sprung_mass * G * self.roll_arm * k
+        return self.mass * G * t / (2.0 * (self.mass * self.cg_height + shift))
 
     # ---------------------------------------------------------------- helpers
     def require(self, *names: str, model: str = "this model") -> None:

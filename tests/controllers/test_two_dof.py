@@ -351,11 +351,13 @@ def test_output_channel_margins_closed_form(kb, kg):
 
 @pytest.mark.parametrize("ratio,share", [(0.0, 0.0), (1.19, 0.0), (1.2, 0.0), (1.35, 0.5), (1.5, 1.0), (3.0, 1.0)])
 def test_limit_share_moves_to_the_static_reference_beyond_the_rollover_limit(ratio, share):
-    # the driver's linear demand as a multiple of the rollover limit g (t_f + t_r) / (4 h) x rollover_share:
+    # the driver's linear demand as a multiple of the rollover limit (rollover_share of the quasi-static threshold):
     # 0 up to limit_demand_lo (1.2), 1 from limit_demand_hi (1.5), linear between; either sign of the demand
     from evstab.toolkit.ecu.step import limit_share
     d = TwoDofDesign(load_vehicle("compact-ev"))
     p = d.params
-    assert d.ay_limit == pytest.approx(0.7 * G * (p.track_front + p.track_rear) / (4 * p.cg_height), rel=1e-12)
+    # 0.7 of the quasi-static threshold, which the body's roll puts below the rigid car's g (t_f + t_r) / (4 h)
+    assert d.ay_limit == pytest.approx(0.7 * p.rollover_threshold, rel=1e-12)
+    assert p.rollover_threshold < G * (p.track_front + p.track_rear) / (4 * p.cg_height)
     for sign in (1.0, -1.0):
         assert limit_share(d, sign * ratio * d.ay_limit) == pytest.approx(share, abs=1e-12)

@@ -73,6 +73,32 @@ def test_derived_values_closed_form():
     assert over.characteristic_speed == math.inf
 
 
+def test_rollover_threshold_hand_worked():
+    # Rigid car: the static stability factor g t / (2 h); t = 1.5 m, h = 0.5 m -> 1.5 g.
+    base = dict(name="t", mass=1500, yaw_inertia=2500, lf=1.2, lr=1.4, cornering_stiffness_front=40000,
+                cornering_stiffness_rear=45000, cg_height=0.5, track_front=1.4, track_rear=1.6)
+    rigid = VehicleParams(**base)
+    assert rigid.roll_gradient is None
+    assert rigid.rollover_threshold == pytest.approx(1.5 * G, rel=1e-14)  # rounding only
+    # Suspended body, m_s = 1000 kg, h_s = 0.5 m, K = 2 m_s g h_s: the body rolls 1 rad per g
+    # (phi / a_y = m_s h_s / (K - m_s g h_s) = 1 / g), its shift adds m_s g h_s / g = 500 kg m to the
+    # overturning moment arm m h = 750 kg m: a_y = 1500 g 1.5 / (2 (750 + 500)) = 0.9 g.
+    body = VehicleParams(**base, sprung_mass=1000, roll_arm=0.5, roll_stiffness=2 * 1000 * G * 0.5)
+    assert body.roll_gradient == pytest.approx(1.0 / G, rel=1e-14)
+    assert body.rollover_threshold == pytest.approx(0.9 * G, rel=1e-14)
+    # no CG height or track: no threshold
+    assert VehicleParams(**{**base, "cg_height": None}).rollover_threshold is None
+
+
+def test_a_suspension_that_cannot_hold_the_body_is_refused():
+    # K must exceed the rolled body's gravity moment m_s g h_s = 1000 x 9.81 x 0.5 = 4905 N m/rad
+    base = dict(name="t", mass=1500, yaw_inertia=2500, lf=1.2, lr=1.4, cornering_stiffness_front=40000,
+                cornering_stiffness_rear=45000, sprung_mass=1000, roll_arm=0.5)
+    VehicleParams(**base, roll_stiffness=1000 * G * 0.5 * 1.001)
+    with pytest.raises(ParameterError, match="'roll_stiffness'.*gravity moment"):
+        VehicleParams(**base, roll_stiffness=1000 * G * 0.5)
+
+
 def test_frozen_and_keyword_only():
     p = load_vehicle("compact-ev")
     with pytest.raises(dataclasses.FrozenInstanceError):

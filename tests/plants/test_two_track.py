@@ -173,6 +173,19 @@ def test_roll_model_steady_state_roll_gain(compact):
     assert r.truth["yaw_rate"][-1] == pytest.approx(rb.truth["yaw_rate"][-1], rel=1e-6)
 
 
+def test_two_track_steady_roll_equals_the_roll_gradient(compact):
+    # The two-track's roll equation carries the rolled body's gravity moment m_s g h_s sin(phi); in a
+    # steady turn its roll per lateral acceleration is VehicleParams.roll_gradient, m_s h_s / (K - m_s g h_s)
+    # (the quasi-static rollover threshold rests on it). Tolerance 2e-3: sin(phi) ~ phi at the ~1.6 deg of
+    # roll here (1.3e-4), and what is left of the roll mode after 6 s (damping ratio 0.34, 1.5 Hz: e^-19).
+    r = simulate(compact, "two-track", step_steer(60 / 3.6, 2.0 * DEG, duration=6.0))
+    ay, roll = r.truth["ay"][-1], r.truth["roll"][-1]
+    assert ay > 2.5  # a real turn
+    assert roll / ay == pytest.approx(compact.roll_gradient, rel=2e-3)
+    # and the rigid-body gain m_s h_s / K, which leaves the gravity moment out, is measurably different
+    assert abs(roll / ay - compact.sprung_mass * compact.roll_arm / compact.roll_stiffness) > 0.03 * roll / ay
+
+
 def test_bank_pushes_car_right():
     p = load_vehicle("compact-ev")
     r = simulate(p, "two-track", step_steer(60 / 3.6, 0.0, duration=3.0),
