@@ -280,7 +280,9 @@ class VehicleParams:
             return None
         t = 0.5 * (self.track_front + self.track_rear)
         k = self.roll_gradient
-        shift = 0.0 if k is None else self.sprung_mass * G * self.roll_arm * k
+        shift = 0.0
+        if k is not None and self.sprung_mass is not None and self.roll_arm is not None:
+            shift = self.sprung_mass * G * self.roll_arm * k
         return self.mass * G * t / (2.0 * (self.mass * self.cg_height + shift))
 
     # ---------------------------------------------------------------- helpers
