@@ -133,7 +133,7 @@ _CONTROLLER_CAL = (
     ("saturation_ay_min", "m/s^2", 0.0, 20.0, "lateral-acceleration demand below which saturation is not judged"),
     ("demand_tau", "s", 0.001, 10.0, "lag of the linear lateral-acceleration demand"),
     ("rear_grip_share", "-", 0.0, 1.0, "share of the rear tyres' remaining grip the yaw moment may take"),
-    ("rollover_share", "-", 0.0, 2.0, "reference lateral acceleration as a share of the static rollover threshold"),
+    ("rollover_share", "-", 0.0, 2.0, "reference lateral acceleration as a share of the quasi-static rollover threshold"),
     ("slip_max", "-", 0.0, 10.0, "rear wheel slip beyond which the yaw moment is cut"),
     ("slip_onset", "-", 0.0, 0.99, "share of slip_max where slip control starts to withdraw the yaw moment"),
     ("slip_lead_time", "s", 0.0, 1.0, "lag of the slip whose difference to the slip is slip control's prediction (how far ahead it looks)"),
