@@ -10,8 +10,8 @@ the drop to the manoeuvre's end, free from 0.1-0.5 s after the drop, starting fr
 what the table gives.
 
 Writes ``reachable.csv`` (one row per reaction time) and ``reachable_table.md``.
-Run: ``python -m evstab.studies.control_reachable OUT_DIR [--quick]`` (about 5 minutes on one core; quick,
-for the test suite: one reaction time, the window to 4 s, the ECU's seed 0 only).
+Run: ``python -m evstab.studies.control_reachable OUT_DIR [--quick]`` (7 min 50 s on 2 cores with two other jobs
+running; quick, for the test suite: one reaction time, the window to 4 s, the ECU's seed 0 only).
 """
 
 from __future__ import annotations
