@@ -65,24 +65,6 @@ class Reachable:
     """IPOPT's return status."""
 
 
-def _collocation(d: int):
-    """Radau IIA collocation: the points in (0, 1] and the matrices of the interpolating polynomial's
-    derivative ``C[j, r]`` (at point r of basis polynomial j, the step's start as point 0) and its end
-    value ``D[j]``."""
-    import casadi as ca
-    tau = [0.0] + list(ca.collocation_points(d, "radau"))
-    C, D = np.zeros((d + 1, d + 1)), np.zeros(d + 1)
-    for j in range(d + 1):
-        poly = np.poly1d([1.0])
-        for r in range(d + 1):
-            if r != j:
-                poly *= np.poly1d([1.0, -tau[r]]) / (tau[j] - tau[r])
-        D[j] = poly(1.0)
-        der = np.polyder(poly)
-        C[j] = [der(tau[r]) for r in range(d + 1)]
-    return np.array(tau), C, D
-
-
 def _state(run, i: int) -> np.ndarray:
     """The two-track state at sample ``i`` of a simulator run (the load-transfer lags at the accelerations)."""
     tr = run.truth
@@ -93,6 +75,13 @@ def _state(run, i: int) -> np.ndarray:
 def _road(road, t: float) -> np.ndarray:
     """The disturbance vector (:data:`plants.model.DISTURBANCES`) of ``road`` at time ``t``."""
     return disturbance_profile(road, np.array([t]))[:, 0]
+
+
+def _driver_command(man, t: float):
+    """The car alone's commands (:data:`plants.model.COMMANDS`) at time ``t``: the driver's steer and speed hold."""
+    at = np.array([t])
+    return COMMANDS.pack(steer=float(man.steer(at)[0]), yaw_moment=0.0, speed_ref=float(man.speed_ref(at)[0]),
+                         drive_on=float(man.drive_on(at)[0]), steer_rate=0.0)
 
 
 def search(case: Case, p: VehicleParams, *, start: float, react: float, end: float, step: float = 0.02,
@@ -117,7 +106,8 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
         guess = simulate(p, "two-track", man, disturbances=road, controller="two-dof")
     n = int(round((end - start) / step))
     t = start + step * np.arange(n + 1)
-    tau, C, D = _collocation(RADAU_POINTS)
+    tau = ca.collocation_points(RADAU_POINTS, "radau")
+    C, D, _ = ca.collocation_coeff(tau)  # the interpolant through the step's start and points: slopes, end value
     nx = len(two_track.STATES)
     xs, us, ws = ca.SX.sym("x", nx), ca.SX.sym("u", 5), ca.SX.sym("w", len(DISTURBANCES))
     f = ca.Function("f", [xs, us, ws], [two_track.f(xs, us, ws, p)])
@@ -147,26 +137,20 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
             opti.subject_to(torque[:, k] == 0.0)
         xc = opti.variable(nx, RADAU_POINTS)
         points.append(xc)
-        x_end = D[0] * X[:, k]
-        for j in range(1, RADAU_POINTS + 1):
+        z = ca.horzcat(X[:, k], xc)
+        slopes = z @ C
+        for j in range(RADAU_POINTS):
             tj = t[k] + tau[j] * step
-            driver = float(man.steer(np.array([tj]))[0])
-            steer = driver + corr[k] + tau[j] * step * rate[k]
             if free:
+                steer = float(man.steer(np.array([tj]))[0]) + corr[k] + tau[j] * step * rate[k]
                 u = ca.vertcat(steer, 0.0, 0.0, tm * torque[0, k], tm * torque[1, k])
             else:
-                cmd = COMMANDS.pack(steer=driver, yaw_moment=0.0, speed_ref=float(man.speed_ref(np.array([tj]))[0]),
-                                    drive_on=float(man.drive_on(np.array([tj]))[0]), steer_rate=0.0)
-                u = hold(cmd, xc[:, j - 1])
-            xp = C[0, j] * X[:, k]
-            for r in range(RADAU_POINTS):
-                xp = xp + C[r + 1, j] * xc[:, r]
+                u = hold(_driver_command(man, tj), xc[:, j])
             # the road just inside the step: a change at a grid time (the friction drop) starts the next step
-            opti.subject_to(step * f(xc[:, j - 1], u, _road(road, tj - 1e-6 * step)) == xp)
-            opti.subject_to(opti.bounded(-peak, beta(xc[:, j - 1]), peak))
-            x_end = x_end + D[j] * xc[:, j - 1]
-            opti.set_initial(xc[:, j - 1], _state(guess, min(int(np.searchsorted(guess.t, tj)), len(guess.t) - 1)))
-        opti.subject_to(X[:, k + 1] == x_end)
+            opti.subject_to(step * f(xc[:, j], u, _road(road, tj - 1e-6 * step)) == slopes[:, j])
+            opti.subject_to(opti.bounded(-peak, beta(xc[:, j]), peak))
+            opti.set_initial(xc[:, j], _state(guess, min(int(np.searchsorted(guess.t, tj)), len(guess.t) - 1)))
+        opti.subject_to(X[:, k + 1] == z @ D)
     # a vanishing cost on the commands' motion picks one of the many sequences with the same peak
     opti.minimize(peak + 1e-6 * ca.sumsqr(rate) + 1e-6 * ca.sumsqr(torque))
     for k in range(n + 1):
@@ -185,7 +169,7 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
         opti.set_initial(torque, np.nan_to_num(warm.torques, nan=0.0) / tm)
         opti.set_initial(peak, np.radians(warm.peak_beta_deg))
         for k, xc in enumerate(points):
-            opti.set_initial(xc, warm.x[:, [k]] + np.outer(warm.x[:, k + 1] - warm.x[:, k], tau[1:]))
+            opti.set_initial(xc, warm.x[:, [k]] + np.outer(warm.x[:, k + 1] - warm.x[:, k], tau))
     opti.solver("ipopt", {"print_time": False}, {"max_iter": max_iter, "print_level": 0, "tol": 1e-7, "sb": "yes"})
     # a search stopped short (its iteration limit) still gives commands: what they reach is what replay shows
     sol = opti.solve_limited()
@@ -213,13 +197,11 @@ def replay(r: Reachable, case: Case, p: VehicleParams, *, rtol: float = 1e-9, at
         free = not np.isnan(r.torques[0, k])
 
         def rhs(t, x, k=k, t0=t0, t1=t1, rate=rate, free=free):
-            driver = float(man.steer(np.array([t]))[0])
             if free:
-                u = np.array([driver + r.correction[k] + (t - t0) * rate, 0.0, 0.0, r.torques[0, k], r.torques[1, k]])
+                steer = float(man.steer(np.array([t]))[0]) + r.correction[k] + (t - t0) * rate
+                u = np.array([steer, 0.0, 0.0, r.torques[0, k], r.torques[1, k]])
             else:
-                cmd = COMMANDS.pack(steer=driver, yaw_moment=0.0, speed_ref=float(man.speed_ref(np.array([t]))[0]),
-                                    drive_on=float(man.drive_on(np.array([t]))[0]), steer_rate=0.0)
-                u = np.asarray(two_track.command_map(np.asarray(cmd, float), x, p), float)
+                u = np.asarray(two_track.command_map(np.asarray(_driver_command(man, t), float), x, p), float)
             return np.asarray(two_track.f(x, u, _road(road, min(t, t1 - 1e-6 * (t1 - t0))), p), float)
         sol = solve_ivp(rhs, (t0, t1), x, method="Radau", rtol=rtol, atol=atol)
         x = sol.y[:, -1]
