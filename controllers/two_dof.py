@@ -137,6 +137,9 @@ class TwoDofDesign:
     """Share of the driver's drive torque the ECU takes away at the law's full authority [-], in proportion to
     its blend weight (the ``drive_share`` output; none with ``always_active``): the torque intervention of an
     ESC, which leaves the rear tyres' grip to the side force and the yaw moment while the law acts."""
+    drive_return_time: float = 1.0
+    """[s] for the drive torque to return in full once the law's authority goes out (the cut may rise at
+    once, it falls no faster than this: :func:`controllers.supervisor.drive_cut`)."""
     steer_authority: float | None = None
     """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's; None: the
     vehicle file's ``steer_authority``, else :data:`STEER_AUTHORITY`. FMVSS 126 on
@@ -217,6 +220,13 @@ class TwoDofDesign:
     """Lateral acceleration of a saturated car as a share of mu g [-]."""
     mu_tau_down: float = 0.2
     """Time constant [s] of the friction estimate falling to what a saturated car delivers."""
+    mu_tau_slide: float = 0.05
+    """... while the car slides out: its yaw rate beyond what its lateral acceleration carries, ``(r - a_y / v)
+    sign(a_y)``, by more than ``slide_rate_fast`` (a road turned slippery under a car in a turn)."""
+    slide_rate_fast: float = np.deg2rad(4.0)
+    """Sideslip rate against the turn [rad/s] from which the friction estimate falls with ``mu_tau_slide``: a car
+    that slides out at 4 deg/s has lost its rear axle's grip; turning in, a car's sideslip moves at that rate only
+    briefly (the envelope's friction drop: 6-7 deg/s right after it)."""
     mu_tau_up: float = 2.0
     """Time constant [s] of its recovery towards ``mu_max``."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"
@@ -234,7 +244,8 @@ class TwoDofDesign:
         if not self.dt > 0:
             raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
-                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width"):
+                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "drive_return_time",
+                     "mu_tau_slide"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.drive_cut <= 1.0:
