@@ -39,8 +39,7 @@ the model-following law of seed 003 acts only when the car needs it.
   know makes that estimate wrong), and no single wrong sensor makes it act.
 * **Drive cut** (:func:`drive_cut`): while the law acts against oversteer, the driver's drive torque
   (the speed hold's, from the rear motors) is cut by ``drive_cut`` times the law's authority, the torque
-  intervention of an ESC: the rear tyres' grip goes to the side force and the yaw moment; after it the
-  drive returns over ``drive_return_time``. The
+  intervention of an ESC: the rear tyres' grip goes to the side force and the yaw moment. The
   ``drive_share`` output says how much of it the ECU lets through.
 * **Steer authority**: the law's steer correction (its steer minus the driver's) is limited to
   ``steer_authority`` and its rate to ``steer_authority_rate``, as an active front steering
@@ -68,7 +67,6 @@ STATE = Layout("supervisor state", [
     Signal("gust_yaw_error", "rad/s", "the gust channel's yaw-rate error, low-passed"),
     Signal("gust_rate", "rad/s", "the kinematic sideslip rate a_y / v - r, low-passed for the gust channel"),
     Signal("oversteer", "-", "1 from the period the law acts against oversteer until its authority is out"),
-    Signal("drive_cut_level", "-", "share of the driver's drive torque taken away, 0-1 (returns at drive_return_time)"),
 ])
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
@@ -76,8 +74,7 @@ the ECU's own limit flags of the last period, the linear model's lateral-acceler
 through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
 is behind the steady-state demand without being saturated) [m/s^2], the yaw moment's
 authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-],
-the gust channel's low-passed errors, the oversteer latch of the drive cut and the share of the drive it
-takes away (:func:`drive_cut`)."""
+the gust channel's low-passed errors, the oversteer latch of the drive cut (:func:`drive_cut`)."""
 
 
 def initial_state(d, o=NUMPY):
@@ -86,13 +83,18 @@ def initial_state(d, o=NUMPY):
     v = STATE.pack(o=o, active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
                    mu_est=d.mu_max if o is not NUMPY else float(d.mu_max), steer_saturated=0.0,
                    yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0, gust_yaw_error=0.0,
-                   gust_rate=0.0, oversteer=0.0, drive_cut_level=0.0)
+                   gust_rate=0.0, oversteer=0.0)
     return list(v) if o is NUMPY else v
 
 
-def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NUMPY, yaw_rate=None):
+def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited, dt, o=NUMPY):
     """``(mu_next, use, demand_next)``: the friction estimate after this period, the friction use
-    ``|a_y| / (mu g)`` and the lagged linear demand."""
+    ``|a_y| / (mu g)`` and the lagged linear demand.
+
+    Where the car is saturated the estimate falls towards what it delivers with ``mu_tau_down``, and with
+    ``mu_tau_slide`` while the car slides out, its ``yaw_rate`` beyond what its lateral acceleration carries
+    (``(r - a_y / v) sign(a_y)``) by more than ``slide_rate_fast``: a road turned slippery under a car in a
+    turn, where a slow estimate keeps the law's friction-limited reference high while the rear axle goes."""
     k = 1.0 - o.exp(-dt / d.demand_tau)
     now = speed * gamma_ss_unlimited
     demand_next = demand + (now - demand) * k
@@ -104,11 +106,9 @@ def friction_estimate(d, mu_est, demand, speed, ay, gamma_ss_unlimited, dt, o=NU
     a_lin = o.fmax(o.fmin(o.if_else(demand_next >= 0.0, now, -now), o.fabs(demand_next)), 0.0)
     saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin) * (ay * demand_next > 0.0)
     target = o.if_else(saturated > 0.5, delivered, d.mu_max)
-    down = d.mu_tau_down
-    if yaw_rate is not None:
-        # the car slides out (it yaws faster than its lateral acceleration carries: beta' against the turn)
-        slide_rate = (yaw_rate - ay / o.fmax(speed, 1.0)) * o.if_else(ay >= 0.0, 1.0, -1.0)
-        down = o.if_else(slide_rate > d.slide_rate_fast, d.mu_tau_slide, d.mu_tau_down)
+    # the car slides out: it yaws faster than its lateral acceleration carries (beta' against the turn)
+    slide_rate = (yaw_rate - ay / o.fmax(speed, 1.0)) * o.if_else(ay >= 0.0, 1.0, -1.0)
+    down = o.if_else(slide_rate > d.slide_rate_fast, d.mu_tau_slide, d.mu_tau_down)
     tau = o.if_else(target < mu_est, down, d.mu_tau_up)
     mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0)
     mu_next = o.fmin(o.fmax(o.fmax(mu_next, delivered), d.mu_min), d.mu_max)
@@ -215,32 +215,27 @@ def phase_plane_excess(d, beta, beta_rate, trusted, o=NUMPY):
     return s - o.fmin(o.fmax(s, -d.phase_beta), d.phase_beta)
 
 
-def drive_cut(d, oversteer, level, blend, yaw_rate_error, yaw_rate, beta, beta_rate, beta_std, dt, o=NUMPY):
-    """``(drive_share, oversteer_next, level_next)``: the share of the driver's drive torque the ECU lets
-    through, the oversteer latch and the share it takes away.
+def drive_cut(d, oversteer, blend, yaw_rate_error, yaw_rate, beta, beta_rate, beta_std, o=NUMPY):
+    """``(drive_share, oversteer_next)``: the share of the driver's drive torque the ECU lets through, and the
+    oversteer latch.
 
     The latch is set on the first period the law has authority (``blend`` > 0, this period's) and the car
     oversteers: it yaws beyond the reference band (the law's ``yaw_rate_error`` against the yaw rate), is
     outside the phase-plane region (:func:`phase_plane_excess`), or its sideslip ``beta`` (:func:`slide`) is
     beyond ``beta_threshold`` while the estimate is trusted; it holds until the law's authority is out. The
-    cut follows ``drive_cut x blend`` while the latch is set and may rise at once; it returns no faster than
-    ``1 / drive_return_time`` per second (the whole drive in ``drive_return_time``), so that the drive comes
-    back gradually after an intervention, not within the law's ``blend_time``: a car that has just been
-    held at the limit and slowed down there, given its whole drive back within 0.1 s, spins its rear
-    wheels and oversteers again. The share is ``1 - cut`` (1 with ``always_active``, the paper's law). The
-    speed hold's drive torque comes from the rear motors, and what they take from the rear tyres' grip the
-    rear axle lacks against the slide. A car that understeers keeps its drive (cutting it would move load
-    to the front axle: lift-off oversteer). Held, not judged each period: the yaw-rate error crosses the
-    band's edge with the gyro's noise in a slide, and a cut judged each period would switch the drive on
-    and off at 1 kHz."""
+    share is ``1 - drive_cut x blend`` while it is set, 1 otherwise (and 1 with ``always_active``, the
+    paper's law). The speed hold's drive torque comes from the rear motors, and what they take from the
+    rear tyres' grip the rear axle lacks against the slide. A car that understeers keeps its drive (cutting
+    it would move load to the front axle: lift-off oversteer). Held, not judged each period: the yaw-rate
+    error crosses the band's edge with the gyro's noise in a slide, and a cut judged each period would
+    switch the drive on and off at 1 kHz."""
     trusted = beta_std < d.beta_std_max
     excess = phase_plane_excess(d, beta, beta_rate, trusted, o)
     over = o.fmax(o.fmax(yaw_rate_error * yaw_rate < 0.0, o.fabs(excess) > 0.0),
                   trusted * (o.fabs(beta) > d.beta_threshold))
     latch = o.if_else(blend > 0.0, o.fmax(oversteer, over), 0.0)
     cut = 0.0 if d.always_active else d.drive_cut
-    level_next = o.fmin(o.fmax(cut * blend * latch, level - dt / d.drive_return_time), 1.0)
-    return 1.0 - level_next, latch, level_next
+    return 1.0 - cut * blend * latch, latch
 
 
 def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, steer_law, nz_law, nz_limit, dt,

@@ -137,9 +137,6 @@ class TwoDofDesign:
     """Share of the driver's drive torque the ECU takes away at the law's full authority [-], in proportion to
     its blend weight (the ``drive_share`` output; none with ``always_active``): the torque intervention of an
     ESC, which leaves the rear tyres' grip to the side force and the yaw moment while the law acts."""
-    drive_return_time: float = 1.0
-    """[s] for the drive torque to return in full once the law's authority goes out (the cut may rise at
-    once, it falls no faster than this: :func:`controllers.supervisor.drive_cut`)."""
     steer_authority: float | None = None
     """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's; None: the
     vehicle file's ``steer_authority``, else :data:`STEER_AUTHORITY`. FMVSS 126 on
@@ -244,8 +241,7 @@ class TwoDofDesign:
         if not self.dt > 0:
             raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
-                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "drive_return_time",
-                     "mu_tau_slide"):
+                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "mu_tau_slide"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.drive_cut <= 1.0:

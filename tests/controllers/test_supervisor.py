@@ -193,7 +193,7 @@ def test_friction_evidence_only_where_demand_and_car_agree(now, lagged, ay, satu
     d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
     assert (d.saturation_ratio, d.saturation_ay_min) == (0.8, 2.0)
     speed, dt = 20.0, 1e-9  # a period short enough that the lagged demand does not move (by 1e-8 m/s^2)
-    mu_next, _, demand_next = sup.friction_estimate(d, 1.0, lagged, speed, ay, now / speed, dt)
+    mu_next, _, demand_next = sup.friction_estimate(d, 1.0, lagged, speed, ay, ay / speed, now / speed, dt)
     assert demand_next == pytest.approx(lagged, abs=1e-7)
     # saturated: the estimate moves towards what the car delivers (< 1), else it stays at mu_max
     assert (mu_next < 1.0) == saturated
@@ -216,7 +216,7 @@ def test_the_friction_estimate_falls_fast_only_while_the_car_slides_out(slide_de
     # saturated (the linear demand 10 m/s^2 now and lagged, the car delivering 3): the estimate falls from 1
     # towards |a_y| / (0.95 g) by dt / tau of the way
     target = abs(ay) / (d.peak_ratio * 9.80665)
-    mu_next, _, _ = sup.friction_estimate(d, 1.0, sign * 10.0, speed, ay, sign * 10.0 / speed, dt, yaw_rate=r)
+    mu_next, _, _ = sup.friction_estimate(d, 1.0, sign * 10.0, speed, ay, r, sign * 10.0 / speed, dt)
     assert mu_next == pytest.approx(1.0 + (target - 1.0) * dt / tau, rel=1e-12)
 
 
@@ -310,9 +310,8 @@ def test_the_drive_is_cut_only_while_the_law_acts_against_oversteer():
     ok, unsure = np.radians(0.5), np.radians(2.5)  # beta_std: trusted, not trusted
     r = 0.2  # [rad/s] a left turn
 
-    def cut(latch, blend, e, beta=0.0, rate=0.0, std=ok, dd=d, level=0.0):
-        # no cut before this period (level 0): the share follows the latch and the blend at once
-        return sup.drive_cut(dd, latch, level, blend, e, r, beta, rate, std, 0.001)[:2]
+    def cut(latch, blend, e, beta=0.0, rate=0.0, std=ok, dd=d):
+        return sup.drive_cut(dd, latch, blend, e, r, beta, rate, std)
 
     # the law off: the drive is the driver's and the latch clears, whatever the car does
     assert cut(1.0, 0.0, -0.05, beta=0.2) == (1.0, 0.0)
@@ -331,33 +330,6 @@ def test_the_drive_is_cut_only_while_the_law_acts_against_oversteer():
     assert cut(0.0, 1.0, 0.0, rate=np.radians(13.0), std=unsure) == (1.0, 0.0)
     # the paper's law (always active) never cuts
     assert cut(0.0, 1.0, -0.05, dd=TwoDofDesign(p.as_nominal(), always_active=True))[0] == 1.0
-
-
-def test_the_drive_returns_over_its_return_time():
-    # the cut rises with the law's authority at once and falls no faster than 1 / drive_return_time per second:
-    # with drive_return_time 1 s and a 1 ms period, 0.001 a period
-    p = load_vehicle("compact-ev")
-    d = TwoDofDesign(p.as_nominal())
-    assert d.drive_return_time == 1.0
-
-    def step(level, blend, latch=1.0, dd=d, dt=0.001):
-        share, _, nxt = sup.drive_cut(dd, latch, level, blend, -0.05, 0.2, 0.0, 0.0, 0.0, dt)
-        assert share == pytest.approx(1.0 - nxt, abs=1e-15)
-        return nxt
-
-    assert step(0.2, 1.0) == 1.0  # up at once to drive_cut x blend
-    assert step(1.0, 0.0) == pytest.approx(0.999, abs=1e-15)  # the law out: 1 ms of a 1 s return
-    assert step(1.0, 0.5) == pytest.approx(0.999, abs=1e-15)  # blending out: the ramp, not the blend
-    assert step(0.3, 0.5) == 0.5  # blending in: the blend
-    assert step(0.0005, 0.0) == 0.0  # never below 0
-    # 0.2 s of return from a whole cut, 1 ms periods: 0.8 left (the share 0.2)
-    level = 1.0
-    for _ in range(200):
-        level = step(level, 0.0)
-    assert level == pytest.approx(0.8, abs=1e-12)
-    assert step(1.0, 0.0, dd=TwoDofDesign(p.as_nominal(), drive_return_time=0.25), dt=0.01) == pytest.approx(0.96)
-    with pytest.raises(Exception, match="drive_return_time"):
-        TwoDofDesign(p.as_nominal(), drive_return_time=0.0)
 
 
 def test_the_drive_cut_setting_is_a_share():

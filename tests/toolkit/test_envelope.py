@@ -196,9 +196,8 @@ def test_human_driver_reacts_after_the_delay_and_through_the_lag():
 def test_the_ecu_takes_the_drive_torque_away_while_it_acts():
     # the friction drop (mu 1 -> 0.3 in a steady turn at 80 km/h): the driver's speed hold drives the rear
     # motors, and their drive force uses the grip the rear axle needs against the slide. The ECU lets
-    # at most 1 - drive_cut x its authority of the drive through while it cuts, and gives it back over
-    # drive_return_time; with the cut the car is held within the stabilise rule's 5 deg, without it not
-    # (measured 3.98 against 5.59 deg, seed 0)
+    # 1 - drive_cut x its authority of the drive through (all of it wherever the law is off); with the cut the
+    # car is held within the stabilise rule's 5 deg, without it not (measured 3.98 against 5.59 deg, seed 0)
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.loop.simulator import simulate
     p = load_vehicle("compact-ev")
@@ -208,18 +207,14 @@ def test_the_ecu_takes_the_drive_torque_away_while_it_acts():
                           design=TwoDofDesign(p, drive_cut=cut)) for cut in (0.0, 1.0)}
     cut, kept = runs[1.0], runs[0.0]
     assert np.all(kept["drive_share"] == 1.0)
-    on = cut["active"] > 0.0
-    assert on.any() and (~on).any()
-    ds, dt = cut["drive_share"], np.diff(cut.t)
-    # all of the drive until the law first acts; the cut never more than the law's authority while the cut is
-    # rising (1 - active is the share at the whole cut x the blend, 1 ulp at 1 for the subtraction)
-    first = np.argmax(on)
-    assert np.all(ds[:first] == 1.0)
-    rising = np.flatnonzero(np.diff(ds) < 0.0) + 1
-    assert np.all(ds[rising] >= 1.0 - cut["active"][rising] - 2.3e-16)
-    # the drive comes back no faster than 1 / drive_return_time (1 s) per second, also where the law's
-    # authority blends out within its 0.1 s blend time (1e-12: the sum of the ramp's steps)
-    assert np.all(np.diff(ds) <= dt / 1.0 + 1e-12)
-    assert np.any(ds < 0.5)
+    off = cut["active"] == 0.0
+    assert off.any() and (~off).any()
+    assert np.all(cut["drive_share"][off] == 1.0)
+    # where cut, 1 - 1 x active (the oversteer latch set), to the last bit of the subtraction (1 ulp at 1);
+    # elsewhere all of it (the latch clear); and the slide sets the latch
+    ds, share = cut["drive_share"], 1.0 - cut["active"]
+    latched = np.abs(ds - share) <= 2.3e-16
+    assert np.all(latched | (ds == 1.0))
+    assert np.any(latched & (ds < 0.5))
     peak = {k: np.degrees(np.max(np.abs(r["beta"]))) for k, r in runs.items()}
     assert peak[1.0] < ev.HELD_DEG <= peak[0.0], peak

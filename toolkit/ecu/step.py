@@ -125,7 +125,6 @@ _CONTROLLER_CAL = (
     ("hold_time", "s", 0.001, 10.0, "time both errors stay below the off thresholds before the law ends"),
     ("blend_time", "s", 0.001, 10.0, "ramp time of the law's authority"),
     ("drive_cut", "-", 0.0, 1.0, "share of the driver's drive torque taken away at the law's full authority"),
-    ("drive_return_time", "s", 0.001, 10.0, "time for the drive torque to return in full after an intervention"),
     ("steer_authority", "rad", 0.0, 1.0, "largest steer correction added to the driver's road-wheel angle"),
     ("steer_authority_rate", "rad/s", 0.0, 100.0, "largest rate of the steer correction"),
     ("mu_max", "-", 0.05, 2.0, "friction assumed without evidence of less"),
@@ -396,8 +395,8 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     # on a fresh start the supervisor's lagged states go to their targets at once (a step of FRESH_LAG s, far
     # beyond their time constants): the friction the car is using now, not mu_max
     lag_dt = o.if_else(fresh > 0.5, FRESH_LAG, g["dt"])
-    mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"], gamma_lin,
-                                                    lag_dt, o, yaw_rate=est["yaw_rate"])
+    mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"],
+                                                    est["yaw_rate"], gamma_lin, lag_dt, o)
     mu_ref = o.fmin(mu_est, g["mu"])
     # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
     # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
@@ -441,9 +440,8 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     law_n = ctl_mod.STATE.as_dict(z_law_n)
     law_n["xi_beta"], law_n["xi_yaw_rate"] = law_n["xi_beta"] * law_on, law_n["xi_yaw_rate"] * law_on
     # the drive torque the rear motors may take from the rear tyres while the law acts against oversteer
-    drive_share, sup_n["oversteer"], sup_n["drive_cut_level"] = sup_mod.drive_cut(
-        c, sup_st.oversteer, sup_st.drive_cut_level, sup_n["blend"], law.yaw_rate_error, est["yaw_rate"], beta_slide,
-        beta_rate, est["beta_std"], g["dt"], o)
+    drive_share, sup_n["oversteer"] = sup_mod.drive_cut(c, sup_st.oversteer, sup_n["blend"], law.yaw_rate_error,
+                                                         est["yaw_rate"], beta_slide, beta_rate, est["beta_std"], o)
     t_rl, t_rr = rear_torques(d, nz_cmd, o)
     out = OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std",
                                                    "gps_used")},
