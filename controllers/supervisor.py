@@ -92,9 +92,11 @@ def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited
     ``|a_y| / (mu g)`` and the lagged linear demand.
 
     Where the car is saturated the estimate falls towards what it delivers with ``mu_tau_down``, and with
-    ``mu_tau_slide`` while the car slides out, its ``yaw_rate`` beyond what its lateral acceleration carries
-    (``(r - a_y / v) sign(a_y)``) by more than ``slide_rate_fast``: a road turned slippery under a car in a
-    turn, where a slow estimate keeps the law's friction-limited reference high while the rear axle goes."""
+    ``mu_tau_slide`` while the car slides out of a held turn: its ``yaw_rate`` beyond what its lateral
+    acceleration carries (``(r - a_y / v) sign(a_y)``) by more than ``slide_rate_fast``, and the linear demand
+    now within ``slide_demand_steady`` of the lagged one. That is a road turned slippery under a car in a
+    turn, where a slow estimate keeps the law's friction-limited reference high while the rear axle goes;
+    through a steer reversal the yaw rate leads the lateral acceleration as much without a slide."""
     k = 1.0 - o.exp(-dt / d.demand_tau)
     now = speed * gamma_ss_unlimited
     demand_next = demand + (now - demand) * k
@@ -106,9 +108,12 @@ def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited
     a_lin = o.fmax(o.fmin(o.if_else(demand_next >= 0.0, now, -now), o.fabs(demand_next)), 0.0)
     saturated = (a_lin > d.saturation_ay_min) * (a < d.saturation_ratio * a_lin) * (ay * demand_next > 0.0)
     target = o.if_else(saturated > 0.5, delivered, d.mu_max)
-    # the car slides out: it yaws faster than its lateral acceleration carries (beta' against the turn)
+    # the car slides out: it yaws faster than its lateral acceleration carries (beta' against the turn) while
+    # the driver holds the turn (the demand now within slide_demand_steady of the lagged one; through a
+    # reversal the yaw rate leads the lateral acceleration without a slide)
     slide_rate = (yaw_rate - ay / o.fmax(speed, 1.0)) * o.if_else(ay >= 0.0, 1.0, -1.0)
-    down = o.if_else(slide_rate > d.slide_rate_fast, d.mu_tau_slide, d.mu_tau_down)
+    steady = o.fabs(now - demand_next) <= d.slide_demand_steady * o.fabs(demand_next)
+    down = o.if_else((slide_rate > d.slide_rate_fast) * steady > 0.5, d.mu_tau_slide, d.mu_tau_down)
     tau = o.if_else(target < mu_est, down, d.mu_tau_up)
     mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0)
     mu_next = o.fmin(o.fmax(o.fmax(mu_next, delivered), d.mu_min), d.mu_max)

@@ -224,6 +224,10 @@ class TwoDofDesign:
     """Sideslip rate against the turn [rad/s] from which the friction estimate falls with ``mu_tau_slide``. In the
     envelope's friction drop on compact-ev (seed 0) the rate is at most 2.2 deg/s while the car turns in at 0.5 g
     and 6.2-7.5 deg/s in the first 50 ms after the drop."""
+    slide_demand_steady: float = 0.2
+    """... and only while the driver holds the turn: the linear demand now within this share of the lagged one
+    [-]. In ISO 3888-1 at 100 km/h on mu 0.5 (compact-ev, seed 2) the reversal's yaw rate leads the lateral
+    acceleration by more than ``slide_rate_fast`` without a slide."""
     mu_tau_up: float = 2.0
     """Time constant [s] of its recovery towards ``mu_max``."""
     method: str = "zoh (integrator and reference lag); feed-forward from the lag's exact derivative"

@@ -199,24 +199,29 @@ def test_friction_evidence_only_where_demand_and_car_agree(now, lagged, ay, satu
     assert (mu_next < 1.0) == saturated
 
 
-@pytest.mark.parametrize("slide_deg_s, ay, tau", [
+@pytest.mark.parametrize("slide_deg_s, ay, now, tau", [
     # a_y 3 m/s^2 at 20 m/s carries r = 0.15 rad/s; the yaw rate beyond it by more than slide_rate_fast (4 deg/s)
     # is a car sliding out: mu_tau_slide (0.05 s); at or below it mu_tau_down (0.2 s)
-    (4.1, 3.0, 0.05), (3.9, 3.0, 0.2), (0.0, 3.0, 0.2),
+    (4.1, 3.0, 10.0, 0.05), (3.9, 3.0, 10.0, 0.2), (0.0, 3.0, 10.0, 0.2),
     # the mirror image in a right turn
-    (4.1, -3.0, 0.05), (3.9, -3.0, 0.2),
+    (4.1, -3.0, -10.0, 0.05), (3.9, -3.0, -10.0, 0.2),
     # a yaw rate below what a_y carries (the car drifting wide, the sideslip rate with the turn): the slow fall
-    (-10.0, 3.0, 0.2)])
-def test_the_friction_estimate_falls_fast_only_while_the_car_slides_out(slide_deg_s, ay, tau):
+    (-10.0, 3.0, 10.0, 0.2),
+    # the driver not holding the turn: the lagged demand 10 m/s^2 moves by 1 - exp(-1 ms / 0.15 s) of the way to
+    # the demand now; at 12.0 it is 10.0133 and the demand now within 0.2 of it (1.987 <= 2.0027): held; at 12.1
+    # it is 10.0139 and 2.086 > 2.0028 from it: a reversal or a turn-in, the slow fall
+    (4.1, 3.0, 12.0, 0.05), (4.1, 3.0, 12.1, 0.2), (4.1, -3.0, -12.0, 0.05), (4.1, -3.0, -12.1, 0.2)])
+def test_the_friction_estimate_falls_fast_only_while_the_car_slides_out_of_a_held_turn(slide_deg_s, ay, now, tau):
     d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
-    assert (d.mu_tau_down, d.mu_tau_slide, np.degrees(d.slide_rate_fast)) == pytest.approx((0.2, 0.05, 4.0))
+    assert (d.mu_tau_down, d.mu_tau_slide, np.degrees(d.slide_rate_fast), d.slide_demand_steady, d.demand_tau) == \
+        pytest.approx((0.2, 0.05, 4.0, 0.2, 0.15))
     speed, dt = 20.0, 1e-3
     sign = 1.0 if ay > 0 else -1.0
     r = ay / speed + sign * np.radians(slide_deg_s)
-    # saturated (the linear demand 10 m/s^2 now and lagged, the car delivering 3): the estimate falls from 1
+    # saturated (the linear demand lagged 10 m/s^2, now `now`, the car delivering 3): the estimate falls from 1
     # towards |a_y| / (0.95 g) by dt / tau of the way
     target = abs(ay) / (d.peak_ratio * 9.80665)
-    mu_next, _, _ = sup.friction_estimate(d, 1.0, sign * 10.0, speed, ay, r, sign * 10.0 / speed, dt)
+    mu_next, _, _ = sup.friction_estimate(d, 1.0, sign * 10.0, speed, ay, r, now / speed, dt)
     assert mu_next == pytest.approx(1.0 + (target - 1.0) * dt / tau, rel=1e-12)
 
 

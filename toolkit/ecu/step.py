@@ -164,6 +164,7 @@ _CONTROLLER_CAL = (
     ("mu_tau_down", "s", 0.001, 100.0, "time constant of the friction estimate falling"),
     ("mu_tau_slide", "s", 0.001, 100.0, "time constant of the friction estimate falling while the car slides out"),
     ("slide_rate_fast", "rad/s", 0.0, 10.0, "sideslip rate against the turn from which the fast fall applies"),
+    ("slide_demand_steady", "-", 0.0, 10.0, "share of the lagged demand within which the demand now counts as held"),
     ("mu_tau_up", "s", 0.001, 100.0, "time constant of the friction estimate recovering"),
 )
 _NOISE_CAL = {
