@@ -193,7 +193,7 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
            if a >= 5 * a_cache[("two-track", 0.6)] - 1e-9 and not (f | g) & {"lateral_displacement", "rollover"}]
     assert [r.label for r in runs] == [f"{case.label}, {a:.0f} deg {d}" for a, d in met] and len(runs) >= 20
     rc, phi = RolloutCost(cfg), phi_of(cfg.paper)
-    pick = [runs[0], runs[-1]]
+    pick = [runs[0], runs[len(runs) // 2], runs[-1]]
     acc = rc.lateral_acceleration(phi, [r.run for r in pick], [r.rest for r in pick])
     _, rows, _ = run_series(cfg.nominal, "two-dof", cfg.filter_design(cfg.paper), mu=0.6,
                             a_deg=a_cache[("two-track", 0.6)], design=cfg.paper.controller(cfg.base_design()))
@@ -205,12 +205,12 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
         assert r.displacement(a) == pytest.approx(scored[r.label], abs=1e-6)
     # d/d log K_beta against central differences of 1e-3 in log space, on the runs where the displacement is
     # smooth there. The loop has small discontinuities (gates, saturations, the reference band's switch to the
-    # limit): one may lie within 1e-3 of the paper design (on the first run, between +1e-4 and +3e-4, where the
-    # step up jumps to -4.3 m per unit), and below 1e-4 rounding in the long rollout moves the differences by
+    # limit, the friction estimate's fast fall): one may lie within 1e-3 of the paper design (measured: on the
+    # first and the last run, 1e-3 steps up and down differ by 0.16 and 0.03 m per unit), and below 1e-4 rounding in the long rollout moves the differences by
     # percents (measured: central differences of 1e-5 give -0.0180 and -0.0529 on the first and last runs, against
     # derivatives of -0.0183 and -0.0576). A run is smooth
     # where the one-sided differences agree within 1 %; the derivative then equals the central difference
-    # within 1 % (measured 0.13 % on the last run: -0.05762 against -0.05754)
+    # within 1 % (measured 0.2 % on the middle run: -0.04577 against -0.04568)
     h, e = 1e-3, np.eye(6)[0]
     smooth = 0
     for r, (a, da) in zip(pick, acc):
@@ -220,7 +220,7 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
         if abs(d_up - d_down) <= 1e-2 * abs(fd):
             smooth += 1
             assert r.displacement(da[:, 0]) == pytest.approx(fd, rel=1e-2)
-    assert smooth >= 1  # at least one of the two runs is checked
+    assert smooth >= 1  # at least one of the three runs is checked
     assert abs(fd) > 0.01  # the gain moves the displacement: the check is not of a flat function
 
 
