@@ -67,6 +67,13 @@ if TYPE_CHECKING:
 
 REFERENCE_MODELS = ("linear", "static")
 """The law's reference models (:attr:`TwoDofDesign.reference_model`)."""
+FRICTION_MARGIN = 0.87
+"""Default yaw-rate reference limit [share of mu g / v]. A saturated car sustains about ``peak_ratio`` (0.95) of
+mu g, and the friction estimate follows what it delivers, so at the limit the reference sits this share of
+0.95 below the car's yaw rate: lower, the law cuts a driver's turn the car can hold (the Vanagon's file +40 %
+in FMVSS 126 on mu 0.5 misses the lateral displacement with 0.85); higher, it acts late where the wrong
+model hides a slide (the Vanagon's step at 60 km/h on mu 0.3 breaks the envelope's no-harm rule with 0.9).
+The figures are in docs/controller.md."""
 STEER_AUTHORITY = float(np.deg2rad(20.0))
 """Default steer authority [rad road wheel] where the vehicle file gives none."""
 STEER_AUTHORITY_RATE = float(np.deg2rad(100.0))
@@ -95,7 +102,9 @@ class TwoDofDesign:
     """... and at which it is the lagged static one."""
     min_speed: float = 3.0
     """Below this speed [m/s] the controller passes the driver's steer through and makes no yaw moment."""
-    friction_margin: float = 0.85
+    friction_margin: float = FRICTION_MARGIN
+    """The reference's yaw-rate limit as a share of ``mu g / v`` (seed 003 eq. 23-24's ``k``, with ``mu`` the
+    ECU's friction estimate); :data:`FRICTION_MARGIN` by default."""
     disturbance_rejection: bool = True
     yaw_moment_max: float | None = None
     """Largest achievable |N_z| [N m]; default from the rear motors: T_max t_r / R_w."""

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from evstab.controllers.two_dof import REFERENCE_MODELS
+from evstab.controllers.two_dof import FRICTION_MARGIN, REFERENCE_MODELS
 from evstab.plants import bundled_vehicles, is_multibody, load_vehicle
 from evstab.plants.disturbances import Disturbances, Friction, default_wind
 from evstab.plants.errors import EvstabError
@@ -344,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--reference-model", choices=REFERENCE_MODELS, default="linear",
                     help="the law's reference: the nominal linear car (default) or seed 003's static reference "
                          "through the lag")
-    sp.add_argument("--friction-margin", type=_positive, default=0.85, help="yaw-rate reference limit, share of mu g / v")
+    sp.add_argument("--friction-margin", type=_positive, default=FRICTION_MARGIN, help="yaw-rate reference limit, share of mu g / v")
     sp.add_argument("--disturbance-filter", type=_nonneg, default=0.0, help="low-pass on the disturbance estimates [s]")
     sp.add_argument("--out", required=True, help="folder for fmvss126.csv and verdict.json")
     sp.set_defaults(func=cmd_fmvss126)

@@ -64,16 +64,16 @@ def test_model_error_cases():
 
 
 def test_reference_model_and_friction_limit():
-    # seed 003 eq. 23-24 (the bicycle's steady-state gains), then |gamma| <= 0.85 mu g / v; the
-    # lateral acceleration asked for stays below 0.7 of the rollover threshold too (compact-ev:
-    # 0.77 g, above 0.85 x 0.5 g here)
+    # seed 003 eq. 23-24 (the bicycle's steady-state gains), then |gamma| <= 0.87 mu g / v (the default
+    # friction_margin, controllers.two_dof.FRICTION_MARGIN); the lateral acceleration asked for stays below
+    # 0.7 of the rollover threshold too (compact-ev: 0.77 g, above 0.87 x 0.5 g here)
     p = load_vehicle("compact-ev")
     d = TwoDofDesign(p)
     kb, kg = steady_state_gains(p, 20.0)
     beta, gamma, _ = reference(d, 20.0, 0.01, 1.0)
     assert (beta, gamma) == pytest.approx((kb * 0.01, kg * 0.01), rel=1e-12)
     beta, gamma, _ = reference(d, 20.0, 0.2, 0.5)
-    assert gamma == pytest.approx(0.85 * 0.5 * G / 20.0, rel=1e-12)
+    assert gamma == pytest.approx(0.87 * 0.5 * G / 20.0, rel=1e-12)
     assert beta / gamma == pytest.approx(kb / kg, rel=1e-12)  # same steady turn
     _, gamma, _ = reference(d, 20.0, 0.2, 2.0)  # friction beyond the rollover limit: that limit holds
     assert gamma * 20.0 == pytest.approx(d.ay_limit, rel=1e-12)
@@ -262,13 +262,13 @@ def test_the_understeer_band_reaches_towards_zero_only(linear, static, r, expect
 @pytest.mark.parametrize("ratio,expected", [(0.0, 0.2), (0.8, 0.2), (0.9, 0.1), (0.95, 0.05), (1.0, 0.0), (2.0, 0.0)])
 def test_the_understeer_band_is_whole_below_0_8_of_the_limit_and_gone_at_it(ratio, expected):
     # the driver's linear demand (the nominal car's steady yaw rate for the steer) as `ratio` of the reference's
-    # limit min(0.85 mu g, ay_limit) / v: the band's share is 0.2 up to 0.8 of it, falls linearly, 0 from 1 on;
+    # limit min(0.87 mu g, ay_limit) / v: the band's share is 0.2 up to 0.8 of it, falls linearly, 0 from 1 on;
     # either sign of the steer
     p = load_vehicle("compact-ev")
     d = TwoDofDesign(p)
     assert (d.understeer_band, d.understeer_demand) == (0.2, 0.8)
     v, mu = 20.0, 0.6
-    limit = min(0.85 * mu * G, d.ay_limit) / v
+    limit = min(0.87 * mu * G, d.ay_limit) / v
     steer = ratio * limit / steady_state_gains(p, v)[1]
     for sign in (1.0, -1.0):
         # 1e-12: a ratio and a difference of doubles of order 1

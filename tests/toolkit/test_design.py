@@ -363,7 +363,7 @@ def test_the_responses_show_the_controller_acting(design_dir):
     """The report's time responses include a run where the controller acts: the limit set's step steer on
     mu 0.5, where the car alone slides past 10 deg and both designs hold it below 5 deg commanding a
     yaw moment beyond the quiet rule's 300 N m (measured on compact-ev: the car alone 89.7 deg, the
-    paper design 1.36 deg with 833 N m); the report's table of peaks says so."""
+    paper design 1.94 deg with 567 N m); the report's table of peaks says so."""
     from evstab.toolkit.design import report
     from evstab.toolkit.design.design_job import LIMIT_RESPONSE_MU
     data = report.load_outputs(design_dir)
