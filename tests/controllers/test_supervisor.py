@@ -130,10 +130,10 @@ def test_slide_leaves_out_a_turns_geometric_sideslip(beta_deg, r, expected_deg):
 def test_slip_control_keeps_the_rear_wheels_rolling():
     # mu 0.3, 60 km/h, sine with dwell at 5 A: the law saturates its yaw moment (4,413 N m, above
     # 2,000 N m); with the rear-grip limit switched off, only slip control stands between that demand
-    # and the rear tyres. Without it (slip_max huge) a rear wheel spins up (a slip of 114) and the car
-    # spins; with it the worse rear wheel stays under the bound (measured 0.079 against slip_max 0.1: the
+    # and the rear tyres. Without it (slip_max huge) a rear wheel spins up (a slip of 113) and the car
+    # spins; with it the worse rear wheel stays under the bound (measured 0.081 against slip_max 0.1: the
     # cut starts at half the bound and looks 50 ms ahead, which the motors' 10,000 N m/s torque rate needs)
-    # and the sideslip is smaller (2.6 deg against 90)
+    # and the sideslip is smaller (2.8 deg against 90)
     p = load_vehicle("compact-ev")
     man = sine_with_dwell(60 / 3.6, np.radians(5 * 22.0) / p.steering_ratio)
     dist = Disturbances(friction=Friction(mu=0.3))

@@ -206,11 +206,12 @@ def test_tuning_displacement_runs_equal_the_fmvss_series_and_their_derivatives_t
     # d/d log K_beta against central differences of 1e-3 in log space, on the runs where the displacement is
     # smooth there. The loop has small discontinuities (gates, saturations, the reference band's switch to the
     # limit, the friction estimate's fast fall): one may lie within 1e-3 of the paper design (measured: on the
-    # first and the last run, 1e-3 steps up and down differ by 0.16 and 0.03 m per unit), and below 1e-4
-    # rounding in the long rollout moves the differences by percents (measured: central differences of 1e-5 give
-    # -0.0180 and -0.0529 on the first and last runs, against derivatives of -0.0183 and -0.0576). A run is smooth
-    # where the one-sided differences agree within 1 %; the derivative then equals the central difference
-    # within 1 % (measured 0.2 % on the middle run: -0.04577 against -0.04568)
+    # first and the last run, 1e-3 steps up and down differ by 0.013 and 0.020 m per unit, a third of the
+    # difference itself), and below 1e-4 rounding in the long rollout moves the differences by percents and more
+    # (measured: central differences of 1e-5 give -0.381 and -0.0542 on the first and last runs, against
+    # derivatives of -0.0452 and -0.0559). A run is smooth where the one-sided differences agree within 1 %; the
+    # derivative then equals the central difference within 1 % (measured on the middle run: -0.05128 both, the
+    # one-sided differences 0.0002 apart)
     h, e = 1e-3, np.eye(6)[0]
     smooth = 0
     for r, (a, da) in zip(pick, acc):

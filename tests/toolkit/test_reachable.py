@@ -48,7 +48,7 @@ def test_with_no_command_free_the_search_is_the_car_alone(car, ecu_run):
 
 def test_commands_found_hold_the_car_and_stay_inside_the_actuators(car, ecu_run):
     """Free from 0.2 s after the drop, the search holds the car far below the car alone (6.97 deg at 4 s) and
-    below the default ECU (3.98 deg by 4 s, seed 0); the scipy replay of the commands found gives the
+    below the default ECU (4.01 deg by 4 s, seed 0); the scipy replay of the commands found gives the
     search's trajectory (1e-3 deg: the collocation's error at 0.02 s against the replay at 1e-9 where the
     commands switch per step), and the commands are inside the steer authority, its rate and the motors'
     limit (1e-9: IPOPT's bound tolerance relative to the bound)."""
