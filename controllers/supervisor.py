@@ -13,18 +13,21 @@ the model-following law of seed 003 acts only when the car needs it.
   saturated and the friction is what
   the car delivers, ``|a_y| / (peak_ratio g)`` (a saturated car sustains about 0.95 of mu g); the
   estimate falls to that with time constant ``mu_tau_down``, otherwise it recovers towards
-  ``mu_max`` with ``mu_tau_up``, and it is never below what the car is using right now. The
+  ``mu_max`` with ``mu_tau_up`` (not while the drive cut's oversteer latch holds), and it is never
+  below what the car is using right now. The lateral acceleration is the accelerometer's reading less
+  the body's roll (``ay_roll_factor``). The
   reference model's friction limit (seed 003 eq. 23-24 with ``|r_ref| <= k mu g / v``) uses
   ``min(mu_est, mu input)``; the ``mu`` input is an optional road sensor (``mu_max`` when there is
-  none). Friction use ``|a_y| / (mu_est g)`` shrinks the dead bands below.
+  none). ``k`` is ``turn_in_margin`` at a turn-in beyond the limit and ``friction_margin`` once the
+  turn is held (:func:`reference_margin`). Friction use ``|a_y| / (mu_est g)`` shrinks the dead bands below.
 * **Activation with hysteresis** (:func:`supervise`). Active when the yaw-rate error (the law's: to the
   band between the linear car and the lagged static reference, both friction-limited; see
   :mod:`controllers.two_dof`) exceeds ``(yaw_rate_deadband + yaw_rate_deadband_per_speed
   v) (1 - deadband_shrink use)``, or the estimated sideslip exceeds ``beta_threshold`` (only when the
   estimate is trustworthy: ``beta_std < beta_std_max``; the sideslip the ECU passes here is the slide,
   less the geometric sideslip ``l_r r / v`` of a turn, :func:`toolkit.ecu.step.ecu_control`); inactive again once both are below
-  ``deactivate_ratio`` of their thresholds for ``hold_time``. The law's authority blends in and out
-  over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
+  ``deactivate_ratio`` of their thresholds for ``hold_time`` while the friction use is below
+  ``release_use``. The law's authority blends in and out over ``blend_time``; while the blend weight is 0 the commands are exactly the driver's steer and no
   yaw moment, and the law's integrators are held at 0.
 * **Sideslip guard** (:func:`phase_plane_excess`): beyond the region ``|beta + phase_tau beta'| <=
   phase_beta`` of the sideslip phase plane (``beta'`` from the accelerometer and gyro), the law is
@@ -67,6 +70,7 @@ STATE = Layout("supervisor state", [
     Signal("gust_yaw_error", "rad/s", "the gust channel's yaw-rate error, low-passed"),
     Signal("gust_rate", "rad/s", "the kinematic sideslip rate a_y / v - r, low-passed for the gust channel"),
     Signal("oversteer", "-", "1 from the period the law acts against oversteer until its authority is out"),
+    Signal("limit_time", "s", "time the driver's linear demand has been beyond the reference's limit"),
 ])
 """Supervisor state: activation flag, time both errors have been below their off thresholds [s],
 blend weight of the law's authority [0-1], applied steer correction [rad], friction estimate [-],
@@ -74,7 +78,8 @@ the ECU's own limit flags of the last period, the linear model's lateral-acceler
 through a first-order lag of ``demand_tau`` (the car's own response time: a car in a transient
 is behind the steady-state demand without being saturated) [m/s^2], the yaw moment's
 authority left by the rear wheels' slip [0-1], the worse rear wheel's slip through a lag of ``slip_lead_time`` [-],
-the gust channel's low-passed errors, the oversteer latch of the drive cut (:func:`drive_cut`)."""
+the gust channel's low-passed errors, the oversteer latch of the drive cut (:func:`drive_cut`), the time the
+driver's linear demand has been beyond the reference's limit (:func:`reference_margin`) [s]."""
 
 
 def initial_state(d, o=NUMPY):
@@ -83,20 +88,25 @@ def initial_state(d, o=NUMPY):
     v = STATE.pack(o=o, active=0.0, hold=0.0, blend=1.0 if d.always_active else 0.0, steer_correction=0.0,
                    mu_est=d.mu_max if o is not NUMPY else float(d.mu_max), steer_saturated=0.0,
                    yaw_moment_saturated=0.0, ay_demand=0.0, slip_authority=1.0, slip_lag=0.0, gust_yaw_error=0.0,
-                   gust_rate=0.0, oversteer=0.0)
+                   gust_rate=0.0, oversteer=0.0, limit_time=0.0)
     return list(v) if o is NUMPY else v
 
 
-def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited, dt, o=NUMPY):
+def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited, dt, o=NUMPY, oversteer=0.0):
     """``(mu_next, use, demand_next)``: the friction estimate after this period, the friction use
-    ``|a_y| / (mu g)`` and the lagged linear demand.
+    ``|a_y| / (mu g)`` and the lagged linear demand. ``ay`` is the car's lateral acceleration (the
+    ECU passes the accelerometer's reading less the body's roll, :attr:`TwoDofDesign.ay_roll_factor`).
 
     Where the car is saturated the estimate falls towards what it delivers with ``mu_tau_down``, and with
     ``mu_tau_slide`` while the car slides out of a held turn: its ``yaw_rate`` beyond what its lateral
     acceleration carries (``(r - a_y / v) sign(a_y)``) by more than ``slide_rate_fast``, and the linear demand
     now within ``slide_demand_steady`` of the lagged one. That is a road turned slippery under a car in a
     turn, where a slow estimate keeps the law's friction-limited reference high while the rear axle goes;
-    through a steer reversal the yaw rate leads the lateral acceleration as much without a slide."""
+    through a steer reversal the yaw rate leads the lateral acceleration as much without a slide.
+
+    The estimate does not recover while ``oversteer`` (the drive cut's latch, :func:`drive_cut`) is set: a car
+    that slows in a held turn asks less of the linear model and stops reading as saturated while it still
+    slides, and a recovering estimate would lift the reference above what the car holds."""
     k = 1.0 - o.exp(-dt / d.demand_tau)
     now = speed * gamma_ss_unlimited
     demand_next = demand + (now - demand) * k
@@ -115,11 +125,27 @@ def friction_estimate(d, mu_est, demand, speed, ay, yaw_rate, gamma_ss_unlimited
     steady = o.fabs(now - demand_next) <= d.slide_demand_steady * o.fabs(demand_next)
     down = o.if_else((slide_rate > d.slide_rate_fast) * steady > 0.5, d.mu_tau_slide, d.mu_tau_down)
     tau = o.if_else(target < mu_est, down, d.mu_tau_up)
-    mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0)
+    rise = o.if_else(target > mu_est, 1.0 - oversteer, 1.0)
+    mu_next = mu_est + (target - mu_est) * o.fmin(dt / tau, 1.0) * rise
     mu_next = o.fmin(o.fmax(o.fmax(mu_next, delivered), d.mu_min), d.mu_max)
     use = o.fmin(a / (o.fmax(mu_next, d.mu_min) * G), 1.0)
     return mu_next, use, demand_next
 
+
+
+def reference_margin(d, limit_time, beyond, dt, fresh=0.0, o=NUMPY):
+    """``(margin, limit_time_next)``: the reference's yaw-rate limit as a share of ``mu g / v`` this period, and
+    the time the driver's linear demand has been beyond the limit (``beyond`` 1: ``|gamma_lin|`` above
+    ``friction_margin mu g / v``). ``turn_in_margin`` for the first ``turn_in_time`` of such a turn, then
+    linearly to ``friction_margin`` over ``turn_in_fall_time``; the time restarts from 0 once the demand is
+    within the limit. A transient turn-in reaches the tyres' peak without a steady slide (FMVSS 126's
+    lateral displacement needs the reference there), while a steady turn at the peak drifts out. On a
+    fresh start (``fresh`` 1) in a turn beyond the limit the turn is taken as held (the steady margin)."""
+    full = d.turn_in_time + d.turn_in_fall_time
+    t = o.if_else(beyond > 0.5, o.fmin(limit_time + dt, full), 0.0)
+    t = o.if_else(fresh * beyond > 0.5, full, t)
+    fall = o.fmin(o.fmax((t - d.turn_in_time) / d.turn_in_fall_time, 0.0), 1.0)
+    return d.turn_in_margin + (d.friction_margin - d.turn_in_margin) * fall, t
 
 
 def yaw_moment_limit(d, mu_est, use, o=NUMPY):
@@ -257,7 +283,7 @@ def supervise(d, z, speed, yaw_rate_error, beta, beta_std, use, steer_driver, st
     excess = 0.0 * speed if beta_rate is None else phase_plane_excess(d, beta, beta_rate, trusted, o)
     on = (o.fabs(yaw_rate_error) > thr_r) + trusted * (o.fabs(beta) > d.beta_threshold) + (o.fabs(excess) > 0.0)
     quiet = (o.fabs(yaw_rate_error) < d.deactivate_ratio * thr_r) * (
-        1.0 - trusted * (o.fabs(beta) >= d.deactivate_ratio * d.beta_threshold))
+        1.0 - trusted * (o.fabs(beta) >= d.deactivate_ratio * d.beta_threshold)) * (use < d.release_use)
     fast = speed >= d.min_speed
     hold_next = o.if_else(active > 0.5, o.if_else(quiet > 0.5, hold + dt, 0.0), 0.0)
     stay = (active > 0.5) * (hold_next < d.hold_time)

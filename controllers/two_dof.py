@@ -42,9 +42,11 @@ reference minus the estimate.
 
 Discrete realisation at the control period ``dt``: the integrator and the
 reference lag by zero-order hold (``xi[k+1] = xi[k] + dt e[k]``, exact for a held
-error; the lag with ``exp(-dt/tau)``). Anti-windup by conditional integration: while a
-command is limited by an actuator and the error would push it further, ``xi`` is
-held.
+error; the lag with ``exp(-dt/tau)``). Anti-windup by conditional integration: the sideslip
+integrator is held while the steer is limited; the yaw-rate integrator while the yaw moment and the
+steer are both limited (with the yaw moment alone limited, :func:`allocate` moves the yaw-rate row to the
+steer, which can still close the error: the rear tyres at the limit leave the yaw moment no authority,
+and a held integrator left a slow slide uncorrected for seconds).
 """
 
 from __future__ import annotations
@@ -68,12 +70,15 @@ if TYPE_CHECKING:
 REFERENCE_MODELS = ("linear", "static")
 """The law's reference models (:attr:`TwoDofDesign.reference_model`)."""
 FRICTION_MARGIN = 0.87
-"""Default yaw-rate reference limit [share of mu g / v]. A saturated car sustains about ``peak_ratio`` (0.95) of
-mu g, and the friction estimate follows what it delivers, so at the limit the reference sits this share of
-0.95 below the car's yaw rate: lower, the law cuts a driver's turn the car can hold (the Vanagon's file +40 %
-in FMVSS 126 on mu 0.5 misses the lateral displacement with 0.85); higher, it acts late where the wrong
-model hides a slide (the Vanagon's step at 60 km/h on mu 0.3 breaks the envelope's no-harm rule with 0.9).
-The figures are in docs/controller.md."""
+"""Default yaw-rate reference limit [share of mu g / v] in a held limit turn (:attr:`TwoDofDesign.friction_margin`).
+A saturated car sustains about ``peak_ratio`` (0.95) of mu g, and the friction estimate follows what it
+delivers: a reference with no margin in a steady limit turn asks for the last of the rear tyres' grip and the
+car drifts out over seconds (a step held 8 s at 130 km/h on mu 0.5). The figures are in docs/controller.md."""
+TURN_IN_MARGIN = 0.95
+"""Default yaw-rate reference limit [share of mu g / v] in the first :attr:`TwoDofDesign.turn_in_time` of a turn
+beyond the limit (:attr:`TwoDofDesign.turn_in_margin`): a transient reaches the tyres' peak without a steady
+slide, and a lower limit cuts a swerve the car can drive (the Vanagon's file +40 % in FMVSS 126 on mu 0.5
+misses the lateral displacement with the steady 0.87 from the first period)."""
 STEER_AUTHORITY = float(np.deg2rad(20.0))
 """Default steer authority [rad road wheel] where the vehicle file gives none."""
 STEER_AUTHORITY_RATE = float(np.deg2rad(100.0))
@@ -104,7 +109,17 @@ class TwoDofDesign:
     """Below this speed [m/s] the controller passes the driver's steer through and makes no yaw moment."""
     friction_margin: float = FRICTION_MARGIN
     """The reference's yaw-rate limit as a share of ``mu g / v`` (seed 003 eq. 23-24's ``k``, with ``mu`` the
-    ECU's friction estimate); :data:`FRICTION_MARGIN` by default."""
+    ECU's friction estimate) once a turn beyond the limit is held; :data:`FRICTION_MARGIN` by default. The
+    law itself (:func:`control_law`, :func:`reference`) always uses this share; the ECU moves the friction
+    it passes the law so that the limit is ``turn_in_margin`` at a turn-in
+    (:func:`controllers.supervisor.reference_margin`)."""
+    turn_in_margin: float = TURN_IN_MARGIN
+    """The ECU's reference limit as a share of ``mu g / v`` for the first ``turn_in_time`` while the driver's
+    linear demand is beyond the limit; it then moves to ``friction_margin`` over ``turn_in_fall_time``."""
+    turn_in_time: float = 1.0
+    """[s] ..."""
+    turn_in_fall_time: float = 1.0
+    """[s] ..."""
     disturbance_rejection: bool = True
     yaw_moment_max: float | None = None
     """Largest achievable |N_z| [N m]; default from the rear motors: T_max t_r / R_w."""
@@ -140,12 +155,23 @@ class TwoDofDesign:
     """Hysteresis: the law stays active until both errors are below this share of their thresholds."""
     hold_time: float = 0.5
     """... for this long [s]."""
+    release_use: float = 0.9
+    """... and while the car uses less than this share of the estimated friction (``|a_y| / (mu_est g)``): a law
+    released at the limit gives the drive torque back to saturated rear tyres (the drive cut ends with it)."""
     blend_time: float = 0.1
     """The law's authority ramps in and out over this time [s]."""
-    drive_cut: float = 1.0
+    drive_cut: float = 0.5
     """Share of the driver's drive torque the ECU takes away at the law's full authority [-], in proportion to
     its blend weight (the ``drive_share`` output; none with ``always_active``): the torque intervention of an
-    ESC, which leaves the rear tyres' grip to the side force and the yaw moment while the law acts."""
+    ESC, which leaves the rear tyres' grip to the side force and the yaw moment while the law acts. Not all
+    of it: in a turn held at the limit the whole cut slows the car, moves load to the front axle and the rear
+    drifts out (lift-off oversteer; a step held 8 s at 130 km/h on mu 0.5 slides to 6 deg with 1.0)."""
+    ay_roll_factor: float | None = None
+    """The car's lateral acceleration per lateral accelerometer reading in steady cornering [-]: the body rolls
+    ``phi = k a_y`` (``k`` :attr:`plants.VehicleParams.roll_gradient`) and the accelerometer reads
+    ``a_y + g phi``, so the factor is ``1 / (1 + g k)``; None: from the nominal file (1 without its roll data).
+    The supervisor reads the friction the car uses through it (a reading 10 % high on compact-ev set the
+    friction estimate above the road's)."""
     steer_authority: float | None = None
     """Largest steer correction [rad road wheel] the steer-by-wire adds to the driver's; None: the
     vehicle file's ``steer_authority``, else :data:`STEER_AUTHORITY`. FMVSS 126 on
@@ -249,12 +275,23 @@ class TwoDofDesign:
             if getattr(self, name) is None:
                 own = getattr(self.params, name, None)
                 object.__setattr__(self, name, float(default if own is None else own))
+        if self.ay_roll_factor is None:
+            k = self.params.roll_gradient
+            object.__setattr__(self, "ay_roll_factor", 1.0 if k is None else float(1.0 / (1.0 + G * k)))
+        if not 0.0 < self.ay_roll_factor <= 1.0:
+            raise DesignError(f"controller setting 'ay_roll_factor' must be in (0, 1], got {self.ay_roll_factor!r}")
+        for name in ("friction_margin", "turn_in_margin"):
+            if not getattr(self, name) > 0:
+                raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
+        if not self.turn_in_time >= 0:
+            raise DesignError(f"controller setting 'turn_in_time' must be >= 0 s, got {self.turn_in_time!r}")
         if not (self.k_beta > 0 and self.k_gamma > 0):
             raise DesignError(f"K_beta and K_gamma must be > 0 rad/s, got {self.k_beta}, {self.k_gamma}")
         if not self.dt > 0:
             raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
-                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "mu_tau_slide"):
+                     "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "mu_tau_slide",
+                     "turn_in_fall_time", "release_use"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.drive_cut <= 1.0:
@@ -405,7 +442,7 @@ def control_law(d: TwoDofDesign, z, sig, o=NUMPY, nz_limit=None):
     nz = o.if_else(low, 0.0, nz)
     # conditional integration: hold xi in a channel whose command is limited; reset at low speed
     xi_b_next = o.if_else(low, 0.0, o.if_else(s.steer_limited > 0.5, xi_b, xi_b + d.dt * e_b))
-    xi_r_next = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited > 0.5, xi_r, xi_r + d.dt * e_r))
+    xi_r_next = o.if_else(low, 0.0, o.if_else(s.yaw_moment_limited * s.steer_limited > 0.5, xi_r, xi_r + d.dt * e_r))
     z_next = STATE.pack(o=o, xi_beta=xi_b_next, xi_yaw_rate=xi_r_next, beta_ref=sb_next, yaw_rate_ref=sr_next,
                         dist_beta=o.if_else(low, 0.0, dist_b), dist_yaw_rate=o.if_else(low, 0.0, dist_r),
                         beta_linear=lb_next, yaw_rate_linear=lr_next)

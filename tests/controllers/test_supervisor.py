@@ -1,6 +1,8 @@
 """The stability controller's supervision: no harm below the thresholds, friction on board,
 the yaw moment the rear tyres can give."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -308,10 +310,11 @@ def test_gust_channel_rejects_a_crosswind():
 
 
 def test_the_drive_is_cut_only_while_the_law_acts_against_oversteer():
-    # hand-worked: beta_threshold 3 deg, phase region |beta + 0.3 beta'| <= 4 deg, beta_std_max 2 deg
+    # hand-worked: beta_threshold 3 deg, phase region |beta + 0.3 beta'| <= 4 deg, beta_std_max 2 deg, drive_cut 0.5
     p = load_vehicle("compact-ev")
     d = TwoDofDesign(p.as_nominal())
     assert (np.degrees(d.beta_threshold), np.degrees(d.phase_beta), d.phase_tau) == pytest.approx((3.0, 4.0, 0.3))
+    assert d.drive_cut == 0.5
     ok, unsure = np.radians(0.5), np.radians(2.5)  # beta_std: trusted, not trusted
     r = 0.2  # [rad/s] a left turn
 
@@ -323,15 +326,15 @@ def test_the_drive_is_cut_only_while_the_law_acts_against_oversteer():
     # understeer (the car yaws less than the band: the error has the turn's sign): no cut
     assert cut(0.0, 0.5, +0.05) == (1.0, 0.0)
     # oversteer (beyond the band, the error against the turn): latched, the cut in proportion to the blend
-    assert cut(0.0, 0.5, -0.05) == (0.5, 1.0)
+    assert cut(0.0, 0.5, -0.05) == (0.75, 1.0)
     assert cut(0.0, 0.5, -0.05, dd=TwoDofDesign(p.as_nominal(), drive_cut=0.4)) == pytest.approx((0.8, 1.0))
     # inside the band (error 0) the latch holds what it was
-    assert cut(1.0, 0.3, 0.0) == pytest.approx((0.7, 1.0)) and cut(0.0, 0.3, 0.0) == (1.0, 0.0)
+    assert cut(1.0, 0.3, 0.0) == pytest.approx((0.85, 1.0)) and cut(0.0, 0.3, 0.0) == (1.0, 0.0)
     # the sideslip beyond 3 deg sets it only while the estimate is trusted (3.5 deg: inside the phase region)
-    assert cut(0.0, 1.0, 0.0, beta=np.radians(3.5)) == (0.0, 1.0)
+    assert cut(0.0, 1.0, 0.0, beta=np.radians(3.5)) == (0.5, 1.0)
     assert cut(0.0, 1.0, 0.0, beta=np.radians(3.5), std=unsure) == (1.0, 0.0)
     # the phase plane: a sideslip rate of 15 deg/s is 4.5 deg after 0.3 s, beyond the region with no sideslip yet
-    assert cut(0.0, 1.0, 0.0, rate=np.radians(15.0), std=unsure) == (0.0, 1.0)
+    assert cut(0.0, 1.0, 0.0, rate=np.radians(15.0), std=unsure) == (0.5, 1.0)
     assert cut(0.0, 1.0, 0.0, rate=np.radians(13.0), std=unsure) == (1.0, 0.0)
     # the paper's law (always active) never cuts
     assert cut(0.0, 1.0, -0.05, dd=TwoDofDesign(p.as_nominal(), always_active=True))[0] == 1.0
@@ -342,3 +345,71 @@ def test_the_drive_cut_setting_is_a_share():
     for bad in (-0.1, 1.5):
         with pytest.raises(Exception, match="drive_cut"):
             TwoDofDesign(p.as_nominal(), drive_cut=bad)
+
+
+@pytest.mark.parametrize("limit_time, beyond, fresh, t_next, margin", [
+    # turn_in_margin 0.95 for turn_in_time 1 s, then to friction_margin 0.87 over turn_in_fall_time 1 s (1 ms periods)
+    (0.0, 1.0, 0.0, 0.001, 0.95), (0.999, 1.0, 0.0, 1.0, 0.95), (1.499, 1.0, 0.0, 1.5, 0.91),
+    (1.999, 1.0, 0.0, 2.0, 0.87), (2.0, 1.0, 0.0, 2.0, 0.87),
+    # the demand back within the limit: the timer restarts, the next turn-in has the turn-in margin
+    (1.5, 0.0, 0.0, 0.0, 0.95),
+    # a fresh start in a turn beyond the limit is a held turn; within the limit nothing is held
+    (0.0, 1.0, 1.0, 2.0, 0.87), (0.0, 0.0, 1.0, 0.0, 0.95)])
+def test_the_reference_margin_falls_once_a_limit_turn_is_held(limit_time, beyond, fresh, t_next, margin):
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    assert (d.turn_in_margin, d.friction_margin, d.turn_in_time, d.turn_in_fall_time) == (0.95, 0.87, 1.0, 1.0)
+    k, t = sup.reference_margin(d, limit_time, beyond, 1e-3, fresh)
+    # 1e-12: a sum of a few numbers of order 1
+    assert (t, k) == pytest.approx((t_next, margin), abs=1e-12)
+
+
+def test_the_friction_estimate_does_not_recover_while_the_oversteer_latch_holds():
+    # not saturated (no demand): the estimate recovers from 0.5 towards mu_max 1 by dt / mu_tau_up, unless the latch
+    # is set; it still falls while saturated (the demand 10 m/s^2, the car delivering 3) and never below what the
+    # car uses (3 / (0.95 g) = 0.322)
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    speed, dt = 20.0, 1e-3
+    free = sup.friction_estimate(d, 0.5, 0.0, speed, 3.0, 0.15, 0.0, dt)[0]
+    held = sup.friction_estimate(d, 0.5, 0.0, speed, 3.0, 0.15, 0.0, dt, oversteer=1.0)[0]
+    assert free == pytest.approx(0.5 + 0.5 * dt / d.mu_tau_up, rel=1e-12)
+    assert held == 0.5
+    target = 3.0 / (d.peak_ratio * G)
+    falling = sup.friction_estimate(d, 0.5, 10.0, speed, 3.0, 0.15, 10.0 / speed, dt, oversteer=1.0)[0]
+    assert falling == pytest.approx(0.5 + (target - 0.5) * dt / d.mu_tau_down, rel=1e-12)
+    assert sup.friction_estimate(d, 0.3, 0.0, speed, 3.0, 0.15, 0.0, dt, oversteer=1.0)[0] == pytest.approx(target)
+
+
+@pytest.mark.parametrize("use, released", [(0.0, True), (0.8999, True), (0.9, False), (1.0, False)])
+def test_the_law_is_not_released_while_the_car_uses_the_friction(use, released):
+    # errors quiet for hold_time (0.5 s): the law ends, unless the car uses release_use (0.9) of the friction or more
+    d = TwoDofDesign(load_vehicle("compact-ev").as_nominal())
+    assert (d.hold_time, d.release_use) == (0.5, 0.9)
+    dt = 1e-3
+    z = _state(d, active=1.0, hold=d.hold_time - 0.5 * dt, blend=1.0)
+    z_next, *_ = sup.supervise(d, z, 20.0, 0.0, 0.0, 0.0, use, 0.0, 0.0, 0.0, 1000.0, dt)
+    assert z_next["active"] == (0.0 if released else 1.0)
+    assert z_next["hold"] == pytest.approx(d.hold_time + 0.5 * dt if released else 0.0)
+
+
+def test_the_supervisor_reads_the_lateral_acceleration_less_the_bodys_roll():
+    # sign and units against the two-track's sensor model (a_y cos(phi) + g sin(phi), the body rolling out of the
+    # turn): in a steady left turn of about 4 m/s^2 on compact-ev the accelerometer reads g k = 9.5 % more than the
+    # car's lateral acceleration, and ay_roll_factor = 1 / (1 + g k) takes it out
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p.as_nominal())
+    k = p.roll_gradient
+    assert G * k == pytest.approx(0.095, abs=0.001)
+    assert d.ay_roll_factor == pytest.approx(1.0 / (1.0 + G * k), rel=1e-15)
+    man = step_steer(60 / 3.6, np.radians(2.6), start=0.5, duration=5.0)
+    r = simulate(p, "two-track", man, controller="none", seed=3)
+    last = r.t > 4.0
+    truth = np.mean(r.truth["ay"][last])
+    reading = np.mean(r.measurements["ay"][last])
+    assert 3.0 < truth < 5.0
+    # 0.5 %: the small-angle form (cos phi 0.9993 at 2.1 deg of roll), the accelerometer's noise over 1000 samples
+    # (0.05 m/s^2 / sqrt(1000)) and its bias draw
+    assert reading * d.ay_roll_factor == pytest.approx(truth, rel=0.005)
+    assert reading / truth == pytest.approx(1.0 + G * k, rel=0.005)
+    # a file without roll data: the reading is taken as it is
+    bare = dataclasses.replace(p.as_nominal(), sprung_mass=None)
+    assert TwoDofDesign(bare).ay_roll_factor == 1.0

@@ -361,3 +361,22 @@ def test_limit_share_moves_to_the_static_reference_beyond_the_rollover_limit(rat
     assert p.rollover_threshold < G * (p.track_front + p.track_rear) / (4 * p.cg_height)
     for sign in (1.0, -1.0):
         assert limit_share(d, sign * ratio * d.ay_limit) == pytest.approx(share, abs=1e-12)
+
+
+@pytest.mark.parametrize("steer_limited, moment_limited, integrates", [
+    (0.0, 0.0, True), (0.0, 1.0, True), (1.0, 0.0, True), (1.0, 1.0, False)])
+def test_the_yaw_rate_integrator_is_held_only_while_both_commands_are_limited(steer_limited, moment_limited,
+                                                                               integrates):
+    # a car yawing 0.05 rad/s beyond the band: with the yaw moment alone limited the allocation moves the yaw row
+    # to the steer, so the integrator runs (xi' = e); the sideslip integrator is held while the steer is limited
+    p = load_vehicle("compact-ev")
+    d = TwoDofDesign(p, understeer_band=0.0)
+    st = STATE.pack(xi_beta=0.0, xi_yaw_rate=0.0, beta_ref=0.0, yaw_rate_ref=0.1, dist_beta=0.0, dist_yaw_rate=0.0,
+                    beta_linear=0.0, yaw_rate_linear=0.2)
+    sig = SIGNALS.pack(speed=20.0, steer_driver=0.0, beta=0.01, yaw_rate=0.25, d1=0.0, d2=0.0, mu=1.0,
+                       steer_limited=steer_limited, yaw_moment_limited=moment_limited, limit_share=0.0)
+    z_next, _ = control_law(d, st, sig)
+    nxt = STATE.as_dict(z_next)
+    # e_r = 0.2 - 0.25 (to the band's upper edge); e_b = 0 - 0.01 (the band 0..0 for beta); one period of 1 ms
+    assert nxt["xi_yaw_rate"] == pytest.approx(-0.05 * d.dt if integrates else 0.0, abs=1e-15)
+    assert nxt["xi_beta"] == pytest.approx(0.0 if steer_limited else -0.01 * d.dt, abs=1e-15)

@@ -31,7 +31,7 @@ import numpy as np
 from evstab.controllers import supervisor as sup_mod
 from evstab.controllers import two_dof as ctl_mod
 from evstab.controllers.schedule import ROWS, SpeedSchedule
-from evstab.controllers.two_dof import TwoDofDesign, control_law, reference
+from evstab.controllers.two_dof import TwoDofDesign, control_law, reference, yaw_rate_limit
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants import G
 from evstab.plants.errors import ModelError
@@ -110,7 +110,11 @@ class Calibration:
 _CONTROLLER_CAL = (
     ("k_beta", "rad/s", 0.01, 100.0, "model-following pole for sideslip (seed 003 K_beta)"),
     ("k_gamma", "rad/s", 0.01, 100.0, "model-following pole for yaw rate (seed 003 K_gamma)"),
-    ("friction_margin", "-", 0.05, 1.5, "yaw-rate reference limit as a share of mu g / v"),
+    ("friction_margin", "-", 0.05, 1.5, "yaw-rate reference limit as a share of mu g / v in a held limit turn"),
+    ("turn_in_margin", "-", 0.05, 1.5, "... in the first turn_in_time of a demand beyond the limit"),
+    ("turn_in_time", "s", 0.0, 10.0, "time the reference limit stays at turn_in_margin"),
+    ("turn_in_fall_time", "s", 0.001, 10.0, "time it then takes to move to friction_margin"),
+    ("ay_roll_factor", "-", 0.5, 1.0, "the car's lateral acceleration per accelerometer reading (the body's roll out)"),
     ("yaw_priority", "-", 0.001, 1000.0, "weight of the yaw-rate row against sideslip when a command saturates"),
     ("steer_max", "rad", 0.0, 1.0, "road-wheel angle command limit"),
     ("yaw_moment_max", "N m", 0.0, 1e5, "largest yaw moment command"),
@@ -123,6 +127,7 @@ _CONTROLLER_CAL = (
     ("beta_std_max", "rad", 0.0, 1.0, "sideslip-estimate std above which the sideslip criterion is ignored"),
     ("deactivate_ratio", "-", 0.0, 1.0, "hysteresis: share of the thresholds below which the law may end"),
     ("hold_time", "s", 0.001, 10.0, "time both errors stay below the off thresholds before the law ends"),
+    ("release_use", "-", 0.001, 2.0, "friction use at and above which the law does not end"),
     ("blend_time", "s", 0.001, 10.0, "ramp time of the law's authority"),
     ("drive_cut", "-", 0.0, 1.0, "share of the driver's drive torque taken away at the law's full authority"),
     ("steer_authority", "rad", 0.0, 1.0, "largest steer correction added to the driver's road-wheel angle"),
@@ -382,8 +387,8 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     friction estimate, activation, authority (see :mod:`controllers.supervisor`).
 
     ``fresh`` 1 on the period the law (re)starts (:func:`restart`; the first period after ``evstab_init``):
-    its lagged references, the supervisor's lagged demand, its friction estimate and the slip control's
-    authority start at their targets for that period's driver steer, speed, lateral acceleration and wheel
+    its lagged references, the supervisor's lagged demand, its friction estimate, the slip control's
+    authority and the reference margin's turn timer start at their targets for that period's driver steer, speed, lateral acceleration and wheel
     speeds, so that a start at speed in a turn is read neither as a yaw-rate error of the whole turn, nor as
     a road of ``mu_max``, nor as rear wheels that do not slip."""
     g = INPUTS.as_dict(u)
@@ -392,16 +397,23 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     z_law, z_sup = parts.controller, parts.supervisor
     sup_st = sup_mod.STATE.unpack(z_sup)
     vm = o.fmax(g["speed"], c.min_speed)
+    # the car's lateral acceleration: the accelerometer reads the body's roll too (a_y + g phi in a turn)
+    ay_car = g["ay"] * c.ay_roll_factor
     _, gamma_lin, _ = reference(c, vm, g["steer_cmd_driver"], g["mu"], o, limited=False)  # the linear demand
     # on a fresh start the supervisor's lagged states go to their targets at once (a step of FRESH_LAG s, far
     # beyond their time constants): the friction the car is using now, not mu_max
     lag_dt = o.if_else(fresh > 0.5, FRESH_LAG, g["dt"])
-    mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], g["ay"],
-                                                    est["yaw_rate"], gamma_lin, lag_dt, o)
+    mu_est, use, demand = sup_mod.friction_estimate(c, sup_st.mu_est, sup_st.ay_demand, g["speed"], ay_car,
+                                                    est["yaw_rate"], gamma_lin, lag_dt, o, sup_st.oversteer)
     mu_ref = o.fmin(mu_est, g["mu"])
+    # the reference's margin: turn_in_margin at a turn-in beyond the limit, friction_margin once it is held; the
+    # law limits its reference with friction_margin, so it is passed the friction that makes the two agree
+    beyond = o.if_else(o.fabs(gamma_lin) > yaw_rate_limit(c, vm, mu_ref, o), 1.0, 0.0)
+    margin, limit_time = sup_mod.reference_margin(c, sup_st.limit_time, beyond, g["dt"], fresh, o)
+    mu_ref = mu_ref * margin / c.friction_margin
     # the yaw rate the car's lateral acceleration can carry: a reference beyond |a_y| / v plus a
     # headroom asks for a growing slide (r > a_y / v means beta' < 0 in a left turn)
-    mu_ref = o.fmin(mu_ref, (o.fabs(g["ay"]) * (1.0 + c.ay_headroom_share) + c.ay_headroom) / (c.friction_margin * G))
+    mu_ref = o.fmin(mu_ref, (o.fabs(ay_car) * (1.0 + c.ay_headroom_share) + c.ay_headroom) / (c.friction_margin * G))
     law0 = ctl_mod.STATE.as_dict(z_law)
     beta_ss, gamma_ss, _ = reference(c, vm, g["steer_cmd_driver"], mu_ref, o)  # the law's own targets
     law0["beta_ref"] = o.if_else(fresh > 0.5, beta_ss, law0["beta_ref"])
@@ -419,7 +431,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     z_law_n, law_y = control_law(c, z_law, sig, o, nz_limit)
     law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
-    beta_rate = g["ay"] / vm - est["yaw_rate"]
+    beta_rate = ay_car / vm - est["yaw_rate"]
     beta_slide = sup_mod.slide(c, est["beta"], est["yaw_rate"], vm, o)  # the sideslip less a turn's geometry
     sup_n, steer_cmd, nz_cmd, law_on = sup_mod.supervise(
         c, z_sup, g["speed"], law.yaw_rate_error, beta_slide, est["beta_std"], use,
@@ -436,7 +448,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
         g["speed"], nz_limit, lag_dt, o)
     nz_cmd = (nz_cmd + (1.0 - sup_n["blend"]) * nz_gust) * k_slip
     sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag,
-                 gust_yaw_error=gust_yaw_error, gust_rate=gust_rate)
+                 gust_yaw_error=gust_yaw_error, gust_rate=gust_rate, limit_time=limit_time)
     # the law's integrators run only while it has authority
     law_n = ctl_mod.STATE.as_dict(z_law_n)
     law_n["xi_beta"], law_n["xi_yaw_rate"] = law_n["xi_beta"] * law_on, law_n["xi_yaw_rate"] * law_on

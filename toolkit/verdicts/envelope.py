@@ -19,7 +19,8 @@ ECU in the loop (not told the road) and without control, and judged by :func:`ju
 * **Rejects a crosswind.** In a gust, the lateral deviation :data:`GUST_AFTER` s after the gust
   starts is at most :data:`GUST_SHARE` of the uncontrolled car's.
 
-The cases (:func:`cases`): step steer (J-turn) at 60-130 km/h on mu 0.3-1.0; a friction drop in a
+The cases (:func:`cases`): step steer (J-turn) at 60-130 km/h on mu 0.3-1.0, held 3.5 s, and at
+100-130 km/h on mu 0.3-0.5 held :data:`HELD_STEP_HOLD` s (a limit turn held until the car slows); a friction drop in a
 steady turn; split friction in a straight-line acceleration and in a lane change; lift-off in a
 turn; the ISO 3888-1 double lane change at 70 and 90 km/h on mu 0.5 and 0.7 (the path-following
 driver); ISO 3888-2 obstacle avoidance and an 18 m slalom with a human driver (reaction delay and
@@ -62,6 +63,8 @@ GUST_SHARE = 0.5
 """In a crosswind the controlled car's lateral deviation is at most this share of the car alone's ..."""
 GUST_AFTER = 2.0
 """... this long [s] after the gust starts."""
+HELD_STEP_HOLD = 8.0
+"""[s] How long the ``held-step`` cases hold the step steer (the ``step`` cases: 3.5 s)."""
 STEP_START = 3.0
 """[s] The step steers' start: the ECU starts with the run at the test speed, and its filter's
 kinematic sideslip path waits ``kinematic_settle`` (2 s) after the first GPS fix; a limit manoeuvre
@@ -78,7 +81,7 @@ class Case:
     """One manoeuvre of the envelope."""
 
     kind: str
-    """``step``, ``friction-drop``, ``split-mu-accel``, ``split-mu-lane-change``, ``lift-off``,
+    """``step``, ``held-step``, ``friction-drop``, ``split-mu-accel``, ``split-mu-lane-change``, ``lift-off``,
     ``iso3888-1``, ``iso3888-2``, ``slalom``, ``sine-with-dwell``, ``crosswind``, ``random-steer``, ``loaded``."""
     speed_kmh: float
     mu: float = 1.0
@@ -115,6 +118,7 @@ def cases(plant: str = "two-track") -> list[Case]:
     needs a plant whose truth evstab can change (not a multi-body car)."""
     out = [Case("step", kmh, mu, subset="design") for kmh, mu in ((80, 1.0), (80, 0.5))]
     out += [Case("step", kmh, mu) for kmh in (60, 100, 130) for mu in (0.3, 0.5, 0.6, 1.0)]
+    out += [Case("held-step", kmh, mu) for kmh, mu in ((100, 0.5), (130, 0.3), (130, 0.5))]
     out += [Case("friction-drop", 80, 1.0, 0.3), Case("friction-drop", 80, 0.8, 0.5)]
     out += [Case("split-mu-accel", 30, 1.0, 0.2), Case("split-mu-lane-change", 80, 1.0, 0.3)]
     out += [Case("lift-off", 80, mu) for mu in (1.0, 0.5)]
@@ -158,9 +162,10 @@ def run_setup(case: Case, p: VehicleParams) -> tuple[Maneuver, Disturbances, Veh
     width = vehicle_width(p)
     road = Disturbances(friction=Friction(mu=case.mu))
     truth = None
-    if case.kind in ("step", "loaded"):
+    if case.kind in ("step", "held-step", "loaded"):
+        hold = HELD_STEP_HOLD if case.kind == "held-step" else 3.5
         man = step_steer(v, steer_for_lateral_acceleration(p, v, 1.5 * case.mu * G), start=STEP_START,
-                         duration=STEP_START + 3.5)
+                         duration=STEP_START + hold)
         if case.kind == "loaded":
             truth = loaded(p)
     elif case.kind == "friction-drop":
