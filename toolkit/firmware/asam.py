@@ -37,10 +37,11 @@ def _unit_method(unit: str) -> str:
 
 MEASURED_STATE = ("supervisor.active", "supervisor.blend", "supervisor.steer_correction", "supervisor.mu_est",
                   "supervisor.slip_authority", "supervisor.slip_lag", "supervisor.ay_demand",
-                  "supervisor.gust_yaw_error", "supervisor.gust_rate", "supervisor.oversteer")
+                  "supervisor.gust_yaw_error", "supervisor.gust_rate", "supervisor.oversteer",
+                  "supervisor.limit_time")
 """ECU state entries (besides the outputs) a calibration engineer watches: the supervision's
 activation, authority, steer correction, friction estimate, slip control, the gust channel's low-passed
-yaw-rate error and sideslip rate, the drive cut's oversteer latch."""
+yaw-rate error and sideslip rate, the drive cut's oversteer latch, the reference margin's turn timer."""
 
 
 def measurements(d) -> list[dict]:
