@@ -281,7 +281,8 @@ def state_writes(fn) -> dict[int, str]:
     element: ``skip`` (it is the element as read: nothing to write), ``in place`` (written over the
     state after the last read of that element) or ``defer`` (read again after it is known: kept in a
     local and written at the end). The step then needs no second state array and no copy of it: the
-    compact-ev ECU writes 63-66 of its 73 elements in place, leaves 7-10 and defers none."""
+    compact-ev ECU's step after the input guard writes 79 of its 130 elements in place, leaves the guard's 51 and
+    defers none."""
     last_read: dict[int, int] = {}
     for i in range(fn.n_instructions()):
         if fn.instruction_id(i) == ca.OP_INPUT and fn.instruction_input(i)[0] == 0:
