@@ -196,25 +196,39 @@ def test_human_driver_reacts_after_the_delay_and_through_the_lag():
 def test_the_ecu_takes_the_drive_torque_away_while_it_acts():
     # the friction drop (mu 1 -> 0.3 in a steady turn at 80 km/h): the driver's speed hold drives the rear
     # motors, and their drive force uses the grip the rear axle needs against the slide. The ECU lets
-    # 1 - drive_cut x its authority of the drive through (all of it wherever the law is off); with the cut the
-    # car is held within the stabilise rule's 5 deg, without it not (measured 4.01 against 5.78 deg, seed 0)
+    # 1 - drive_cut x its authority of the drive through (all of it wherever the law is off); with the default
+    # cut (0.5) the car slides less than without it (measured 3.65 against 4.03 deg, seed 0)
     from evstab.controllers.two_dof import TwoDofDesign
     from evstab.toolkit.loop.simulator import simulate
     p = load_vehicle("compact-ev")
+    assert TwoDofDesign(p).drive_cut == 0.5
     case = next(c for c in ev.cases("two-track") if c.label == "friction-drop 80 km/h mu 1 -> 0.3")
     man, road, _ = ev.run_setup(case, p)
     runs = {cut: simulate(p, "two-track", man, disturbances=road, controller="two-dof",
-                          design=TwoDofDesign(p, drive_cut=cut)) for cut in (0.0, 1.0)}
-    cut, kept = runs[1.0], runs[0.0]
+                          design=TwoDofDesign(p, drive_cut=cut)) for cut in (0.0, 0.5)}
+    cut, kept = runs[0.5], runs[0.0]
     assert np.all(kept["drive_share"] == 1.0)
     off = cut["active"] == 0.0
     assert off.any() and (~off).any()
     assert np.all(cut["drive_share"][off] == 1.0)
-    # where cut, 1 - 1 x active (the oversteer latch set), to the last bit of the subtraction (1 ulp at 1);
-    # elsewhere all of it (the latch clear); and the slide sets the latch
-    ds, share = cut["drive_share"], 1.0 - cut["active"]
+    # where cut, 1 - 0.5 x active (the oversteer latch set), to the last bit of the product and the subtraction
+    # (1 ulp at 1); elsewhere all of it (the latch clear); and the slide sets the latch at full authority
+    ds, share = cut["drive_share"], 1.0 - 0.5 * cut["active"]
     latched = np.abs(ds - share) <= 2.3e-16
     assert np.all(latched | (ds == 1.0))
-    assert np.any(latched & (ds < 0.5))
+    assert np.any(latched & (ds == 0.5))
     peak = {k: np.degrees(np.max(np.abs(r["beta"]))) for k, r in runs.items()}
-    assert peak[1.0] < ev.HELD_DEG <= peak[0.0], peak
+    # 0.2 deg: the cut's effect, measured 0.38 deg, against a rounding-level difference were it not there
+    assert peak[0.5] < peak[0.0] - 0.2, peak
+
+
+def test_the_whole_drive_cut_loses_a_held_limit_turn():
+    # the envelope's held step at 100 km/h on mu 0.5 (held 8 s), seed 4: with the whole drive cut the car slows in
+    # the turn, load moves to the front axle and the rear drifts out past the stabilise rule's 5 deg (measured
+    # 15.9 deg); with half of it the car is held (1.96 deg). The car alone spins.
+    from evstab.controllers.two_dof import TwoDofDesign
+    p = load_vehicle("compact-ev")
+    case = next(c for c in ev.cases("two-track") if c.label == "held-step 100 km/h mu 0.5")
+    whole = ev.run(case, p, "two-track", seed=4, design=TwoDofDesign(p.as_nominal(), drive_cut=1.0))
+    half = ev.run(case, p, "two-track", seed=4, design=TwoDofDesign(p.as_nominal()))
+    assert half.peak_beta_deg < ev.HELD_DEG < whole.peak_beta_deg
