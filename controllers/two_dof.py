@@ -117,9 +117,9 @@ class TwoDofDesign:
     """The ECU's reference limit as a share of ``mu g / v`` for the first ``turn_in_time`` while the driver's
     linear demand is beyond the limit; it then moves to ``friction_margin`` over ``turn_in_fall_time``."""
     turn_in_time: float = 1.0
-    """[s] ..."""
+    """How long [s] the reference limit stays at ``turn_in_margin`` once the driver's linear demand is beyond it."""
     turn_in_fall_time: float = 1.0
-    """[s] ..."""
+    """How long [s] it then takes to move linearly from ``turn_in_margin`` to ``friction_margin``."""
     disturbance_rejection: bool = True
     yaw_moment_max: float | None = None
     """Largest achievable |N_z| [N m]; default from the rear motors: T_max t_r / R_w."""
