@@ -169,7 +169,8 @@ class TwoDofDesign:
     ay_roll_factor: float | None = None
     """The car's lateral acceleration per lateral accelerometer reading in steady cornering [-]: the body rolls
     ``phi = k a_y`` (``k`` :attr:`plants.VehicleParams.roll_gradient`) and the accelerometer reads
-    ``a_y + g phi``, so the factor is ``1 / (1 + g k)``; None: from the nominal file (1 without its roll data).
+    ``a_y + g phi``, so the factor is ``1 / (1 + g k)``; None: the nominal file's
+    :attr:`plants.VehicleParams.roll_reading_factor` (1 without its roll data).
     The supervisor reads the friction the car uses through it (a reading 10 % high on compact-ev set the
     friction estimate above the road's)."""
     steer_authority: float | None = None
@@ -276,13 +277,9 @@ class TwoDofDesign:
                 own = getattr(self.params, name, None)
                 object.__setattr__(self, name, float(default if own is None else own))
         if self.ay_roll_factor is None:
-            k = self.params.roll_gradient
-            object.__setattr__(self, "ay_roll_factor", 1.0 if k is None else float(1.0 / (1.0 + G * k)))
+            object.__setattr__(self, "ay_roll_factor", float(self.params.roll_reading_factor))
         if not 0.0 < self.ay_roll_factor <= 1.0:
             raise DesignError(f"controller setting 'ay_roll_factor' must be in (0, 1], got {self.ay_roll_factor!r}")
-        for name in ("friction_margin", "turn_in_margin"):
-            if not getattr(self, name) > 0:
-                raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not self.turn_in_time >= 0:
             raise DesignError(f"controller setting 'turn_in_time' must be >= 0 s, got {self.turn_in_time!r}")
         if not (self.k_beta > 0 and self.k_gamma > 0):
@@ -291,7 +288,7 @@ class TwoDofDesign:
             raise DesignError(f"control period must be > 0 s, got {self.dt}")
         for name in ("blend_time", "hold_time", "mu_tau_down", "mu_tau_up", "peak_ratio", "mu_min", "demand_tau",
                      "slip_cut_time", "slip_recover_time", "slip_lead_time", "guard_width", "mu_tau_slide",
-                     "turn_in_fall_time", "release_use"):
+                     "turn_in_fall_time", "release_use", "friction_margin", "turn_in_margin"):
             if not getattr(self, name) > 0:
                 raise DesignError(f"controller setting '{name}' must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.drive_cut <= 1.0:

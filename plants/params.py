@@ -267,6 +267,14 @@ class VehicleParams:
         return msh / (self.roll_stiffness - msh * G)
 
     @property
+    def roll_reading_factor(self) -> float:
+        """The car's lateral acceleration in the road plane per lateral accelerometer reading in steady
+        cornering [-]: the body rolls ``phi = k a_y`` (``k`` :attr:`roll_gradient`) and the accelerometer
+        reads ``a_y + g phi``, so ``1 / (1 + g k)``; 1 without the roll data."""
+        k = self.roll_gradient
+        return 1.0 / (1.0 + G * (0.0 if k is None else k))
+
+    @property
     def rollover_threshold(self) -> float | None:
         """Quasi-static rollover threshold [m/s^2], or None without the CG height and the tracks.
 

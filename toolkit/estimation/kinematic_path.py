@@ -45,19 +45,16 @@ def kinematic_layout(d: FilterDesign) -> Layout:
 
 def roll_compensation(p) -> float:
     """The factor that turns the lateral accelerometer's reading into the car's lateral acceleration
-    in the road plane in steady cornering: the body rolls ``phi = m_s h a_y / (K_phi - m_s g h)``
-    and the accelerometer reads ``a_y + g phi``, so ``a_y = reading / (1 + g m_s h / (K_phi - m_s g h))``
-    (1 without the roll parameters)."""
-    return 1.0 / (1.0 + G * static_roll_gain(p))
+    in the road plane in steady cornering (:attr:`plants.VehicleParams.roll_reading_factor`: the reading is
+    ``a_y + g phi`` with the body's static roll ``phi``; 1 without the roll parameters)."""
+    return p.roll_reading_factor
 
 
 def static_roll_gain(p) -> float:
-    """Steady-state roll per lateral acceleration [rad per m/s^2], ``m_s h / (K_phi - m_s g h)``
-    (0 without the roll parameters)."""
-    if None in (p.sprung_mass, p.roll_arm, p.roll_stiffness):
-        return 0.0
-    msh = p.sprung_mass * p.roll_arm
-    return msh / (p.roll_stiffness - msh * G)
+    """Steady-state roll per lateral acceleration [rad per m/s^2] (:attr:`plants.VehicleParams.roll_gradient`;
+    0 without the roll parameters)."""
+    k = p.roll_gradient
+    return 0.0 if k is None else k
 
 
 def lateral_acceleration(d: FilterDesign, g, ks, o):
