@@ -413,3 +413,30 @@ def test_the_supervisor_reads_the_lateral_acceleration_less_the_bodys_roll():
     # a file without roll data: the reading is taken as it is
     bare = dataclasses.replace(p.as_nominal(), sprung_mass=None)
     assert TwoDofDesign(bare).ay_roll_factor == 1.0
+
+
+def test_the_reference_headroom_lets_a_quick_turn_in_keep_its_lateral_displacement():
+    # FMVSS 126 on mu 0.5, the Vanagon from its +40 % stiffness file (the multi-body study's case), the largest
+    # amplitude of the series (16.9 deg A: 261.9 deg, right first), the default design: at the turn-in the yaw rate
+    # leads the lateral acceleration while the sideslip builds up. With 1.25 m/s^2 of headroom the reference held
+    # at the lateral acceleration read that as a slide and the steer was cut to 0.4 deg of the driver's 16: 1.818 m
+    # sideways against the 1.83 m the standard asks (measured); with the default 2 m/s^2, 1.878 m.
+    from evstab.studies.control_mb_fmvss126 import wrong_nominal
+    from evstab.toolkit.loop.simulator import simulate_many
+    from evstab.toolkit.verdicts import fmvss126 as F
+
+    p = wrong_nominal(3)
+    amplitude = F.amplitudes(16.9)[-1]
+    assert amplitude == pytest.approx(261.95)
+    man = F.series_maneuver(p, -amplitude)
+    designs = [TwoDofDesign(p), TwoDofDesign(p, ay_headroom=1.25)]
+    assert designs[0].ay_headroom == 2.0
+    runs = [simulate_many(p, "commonroad-mb:3", [man], disturbances=Disturbances(friction=Friction(mu=0.5)), seed=0,
+                          controller="two-dof", design=d)[0] for d in designs]
+    scores = [F.score_swd(r.t, man.steer(r.t) * p.steering_ratio, r.truth["yaw_rate"], r.truth["ay"]) for r in runs]
+    ok, failed = scores[0].passes(amplitude, 16.9)
+    assert ok, failed
+    # 20 mm: the margin the default keeps (1.878 m) less the run-to-run spread of the gyro's noise (the series'
+    # neighbouring amplitudes move it by up to 30 mm), still above the standard's 1.83 m
+    assert scores[0].lateral_displacement_m > F.LATERAL_DISPLACEMENT_MIN + 0.02
+    assert scores[1].lateral_displacement_m < F.LATERAL_DISPLACEMENT_MIN
