@@ -211,7 +211,7 @@ class TwoDofDesign:
     """[m/s^2] above the measured lateral acceleration (and ``ay_headroom_share`` of it) the yaw-rate
     reference may ask for: a reference beyond ``|a_y| / v`` asks for a growing slide. At a quick turn-in the
     yaw rate leads the lateral acceleration while the car's own sideslip builds up; with 1.25 the Vanagon
-    (+40 % file) read that as a slide in FMVSS 126 on mu 0.5, cut the steer to 0.4 deg of the driver's 16 and
+    (+40 % file) read that as a slide in FMVSS 126 on mu 0.5, cut the steer to 0.35 deg of the driver's 16.4 and
     fell 14 mm short of the 1.83 m of lateral displacement."""
     ay_headroom_share: float = 0.1
     phase_beta: float = np.deg2rad(4.0)
