@@ -246,22 +246,7 @@ def main(out, quick: bool = False) -> list[dict]:
                      ("FAIL: harm" if not r["no_harm"] else "FAIL: late")] for r in resets])
     keys = list(dict.fromkeys(k for r in rows for k in r))
     write_table([{k: r.get(k, "") for k in keys} for r in rows], out / "firmware_faults.csv")
-    table: dict = {}
-    for r in rows:
-        t = table.setdefault((r["signal"], r["fault"]), {"steer": 0.0, "nz": 0.0, "time": 0.0, "named": None,
-                                                          "excess": -np.inf, "by_fault": -np.inf, "ok": True,
-                                                          "fault_ok": True})
-        if "added_steer_deg" in r:
-            t["steer"], t["nz"] = max(t["steer"], r["added_steer_deg"]), max(t["nz"], r["yaw_moment_nm"])
-            t["time"] = max(t["time"], r["intervention_s"])
-            if r["named"] is not None:
-                t["named"] = r["named"] if t["named"] is None else (t["named"] and r["named"])
-            t["ok"] &= r["within_bound"]
-        else:
-            t["excess"] = max(t["excess"], r["peak_beta_deg"] - r["alone_peak_beta_deg"])
-            t["by_fault"] = max(t["by_fault"], r["peak_beta_deg"] - r["no_fault_peak_beta_deg"])
-            t["ok"] &= r["no_harm"] and r["finite"]
-            t["fault_ok"] &= r["as_without_fault"] and r["finite"]
+    table = fault_table(rows)
     write_markdown(out / "firmware_faults_table.md",
                    ["input", "fault", "added steer [deg]", "yaw moment [N m]", "intervening [ms]", "fault word names it",
                     "lane change: peak sideslip less the car alone's [deg]",
@@ -270,8 +255,7 @@ def main(out, quick: bool = False) -> list[dict]:
                      f"{1000 * t['time']:.0f}", "-" if t["named"] is None else ("yes" if t["named"] else "no"),
                      f"{t['excess']:+.2f}" if np.isfinite(t["excess"]) else "-",
                      f"{t['by_fault']:+.2f}" if np.isfinite(t["by_fault"]) else "-",
-                     "pass" if t["ok"] else ("as without the fault" if t["fault_ok"] else "FAIL")]
-                    for (s, f), t in table.items()])
+                     t["verdict"]] for (s, f), t in table.items()])
     runs = len(rows)
     passed = sum(bool(r.get("within_bound", r.get("no_harm")) and r["finite"]) for r in rows)
     as_clean = sum(bool(r.get("within_bound", r.get("as_without_fault")) and r["finite"]) for r in rows)
@@ -286,6 +270,35 @@ def main(out, quick: bool = False) -> list[dict]:
                                                          "controlled, no fault [deg]"],
                    [[c, f"{a:.2f}", f"{b:.2f}"] for c, (a, b) in base.items()])
     return rows
+
+
+def fault_table(rows: list[dict]) -> dict:
+    """Per ``(signal, fault)``, the worst over its runs: added steer, yaw moment and intervention time on the
+    straight roads, whether the fault word named it, the lane changes' peak sideslip less the car alone's and
+    less the controlled car's without the fault, and the verdict: ``pass`` where every run keeps its rule; ``as
+    without the fault`` where a lane change breaks the rule against the car alone but not against the controlled
+    run without the fault, and every straight-road run keeps its bound (the run without the fault makes no
+    command there, so nothing excuses one); ``FAIL`` otherwise."""
+    table: dict = {}
+    for r in rows:
+        t = table.setdefault((r["signal"], r["fault"]), {"steer": 0.0, "nz": 0.0, "time": 0.0, "named": None,
+                                                          "excess": -np.inf, "by_fault": -np.inf, "ok": True,
+                                                          "fault_ok": True})
+        if "added_steer_deg" in r:
+            t["steer"], t["nz"] = max(t["steer"], r["added_steer_deg"]), max(t["nz"], r["yaw_moment_nm"])
+            t["time"] = max(t["time"], r["intervention_s"])
+            if r["named"] is not None:
+                t["named"] = r["named"] if t["named"] is None else (t["named"] and r["named"])
+            t["ok"] &= r["within_bound"] and r["finite"]
+            t["fault_ok"] &= r["within_bound"] and r["finite"]
+        else:
+            t["excess"] = max(t["excess"], r["peak_beta_deg"] - r["alone_peak_beta_deg"])
+            t["by_fault"] = max(t["by_fault"], r["peak_beta_deg"] - r["no_fault_peak_beta_deg"])
+            t["ok"] &= r["no_harm"] and r["finite"]
+            t["fault_ok"] &= r["as_without_fault"] and r["finite"]
+    for t in table.values():
+        t["verdict"] = "pass" if t["ok"] else ("as without the fault" if t["fault_ok"] else "FAIL")
+    return table
 
 
 if __name__ == "__main__":

@@ -40,3 +40,34 @@ def test_a_persistent_nan_is_named(run):
     for r in rows:
         if r["case"].startswith("straight") and r["fault"].endswith("NaN, 500 ms"):
             assert r["named"], r
+
+
+def _straight(within, finite=True):
+    return {"signal": "yaw_rate", "fault": "x offset 0.1, 1000 ms", "finite": finite, "added_steer_deg": 0.6,
+            "yaw_moment_nm": 0.0, "intervention_s": 0.0, "named": False, "within_bound": within}
+
+
+def _lane(no_harm, as_without, finite=True):
+    return {"signal": "yaw_rate", "fault": "x offset 0.1, 1000 ms", "finite": finite, "peak_beta_deg": 2.5,
+            "alone_peak_beta_deg": 2.0, "no_fault_peak_beta_deg": 2.4, "no_harm": no_harm,
+            "as_without_fault": as_without}
+
+
+@pytest.mark.parametrize("straight, lane, verdict", [
+    ([True, True], [(True, True)], "pass"),
+    # the lane change breaks the rule against the car alone, not against the run without the fault
+    ([True, True], [(False, True)], "as without the fault"),
+    ([True, True], [(False, False)], "FAIL"),
+    # a straight road beyond its bound: the run without the fault commands nothing there, nothing excuses it
+    ([True, False], [(True, True)], "FAIL"),
+    ([False, True], [(False, True)], "FAIL"),
+    # a non-finite command fails whatever the peaks say
+    ([True, True], [(True, True, False)], "FAIL"),
+])
+def test_the_fault_tables_verdict(straight, lane, verdict):
+    from evstab.studies.firmware_faults import fault_table
+    rows = [_straight(w) for w in straight] + [_lane(*x) for x in lane]
+    (t,) = fault_table(rows).values()
+    assert t["verdict"] == verdict
+    # the worst over the runs: 2.5 - 2.0 and 2.5 - 2.4
+    assert (t["excess"], t["by_fault"]) == pytest.approx((0.5, 0.1))
