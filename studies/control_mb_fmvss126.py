@@ -7,8 +7,8 @@ run), and the design folder's ECU (the step ``evstab export`` prints as C) in th
 FMVSS 126 series at 80 km/h on mu 1.0, 0.6 and 0.5, real rear-wheel torques, the friction not
 given to the ECU. Beside it the uncontrolled car. Writes ``mb_fmvss126_summary.md``/``.csv`` and the design folders.
 
-Run: ``python -m evstab.studies.control_mb_fmvss126 OUT_DIR [--quick]`` (47 minutes on 2 cores
-with other studies and the test suite on the machine, most of it the three design jobs; quick, for the test suite: the Escort on mu 1.0 only, with the
+Run: ``python -m evstab.studies.control_mb_fmvss126 OUT_DIR [--quick]`` (51 minutes on 2 cores
+with four to six other jobs on the machine, most of it the three design jobs; quick, for the test suite: the Escort on mu 1.0 only, with the
 default ECU designed from the wrong file instead of a design job's).
 """
 

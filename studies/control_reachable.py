@@ -10,7 +10,7 @@ the drop to the manoeuvre's end, free from 0.1-0.5 s after the drop, starting fr
 what the table gives.
 
 Writes ``reachable.csv`` (one row per reaction time) and ``reachable_table.md``.
-Run: ``python -m evstab.studies.control_reachable OUT_DIR [--quick]`` (34 min on 2 cores with four to six other jobs
+Run: ``python -m evstab.studies.control_reachable OUT_DIR [--quick]`` (29 min on 2 cores with four to six other jobs
 running; quick, for the test suite: one reaction time, the window to 4 s, the ECU's seed 0 only).
 """
 

@@ -289,8 +289,9 @@ def fault_table(rows: list[dict]) -> dict:
             t["time"] = max(t["time"], r["intervention_s"])
             if r["named"] is not None:
                 t["named"] = r["named"] if t["named"] is None else (t["named"] and r["named"])
-            t["ok"] &= r["within_bound"] and r["finite"]
-            t["fault_ok"] &= r["within_bound"] and r["finite"]
+            kept = r["within_bound"] and r["finite"]
+            t["ok"] &= kept
+            t["fault_ok"] &= kept
         else:
             t["excess"] = max(t["excess"], r["peak_beta_deg"] - r["alone_peak_beta_deg"])
             t["by_fault"] = max(t["by_fault"], r["peak_beta_deg"] - r["no_fault_peak_beta_deg"])

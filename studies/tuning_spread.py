@@ -8,8 +8,8 @@ worst cases) moves with it. Per run: the tuned parameters, the tuning cases' wor
 paper design's beside it) and the smallest FMVSS 126 lateral displacement of the held runs.
 Writes ``tuning_spread.csv`` / ``.md``.
 
-Run: ``python -m evstab.studies.tuning_spread OUT_DIR [--quick]`` (with ``--quick`` 15 min 20 s on 2
-cores with one to three other jobs running).
+Run: ``python -m evstab.studies.tuning_spread OUT_DIR [--quick]`` (with ``--quick`` 25 min on 2
+cores with four to six other jobs running).
 """
 
 from __future__ import annotations

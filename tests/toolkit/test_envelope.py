@@ -233,6 +233,7 @@ def test_the_whole_drive_cut_loses_a_held_limit_turn():
     case = next(c for c in ev.cases("two-track") if c.label == "held-step 100 km/h mu 0.5")
     whole = ev.run(case, p, "two-track", seed=4, design=TwoDofDesign(p.as_nominal(), drive_cut=1.0, ay_headroom=1.25))
     half = ev.run(case, p, "two-track", seed=4, design=TwoDofDesign(p.as_nominal(), ay_headroom=1.25))
-    default = ev.run(case, p, "two-track", seed=4, design=TwoDofDesign(p.as_nominal()))
-    assert TwoDofDesign(p.as_nominal()).drive_cut == 0.5
+    design = TwoDofDesign(p.as_nominal())
+    assert design.drive_cut == 0.5
+    default = ev.run(case, p, "two-track", seed=4, design=design)
     assert max(half.peak_beta_deg, default.peak_beta_deg) < ev.HELD_DEG < whole.peak_beta_deg
