@@ -150,14 +150,16 @@ def test_the_vanagon_sine_with_dwell_with_a_wrong_model_meets_the_reference_targ
 def test_the_path_lets_go_after_the_slide():
     # the Vanagon's sine with dwell with the exact model: in kinematic mode a sideslip error is not
     # observable, and the error the manoeuvre leaves keeps the model's lateral acceleration off the
-    # measured one; the departure alone holds the path on after the steer (measured 0.51 deg RMS from
-    # 5.5 s on). The gate on the peak-held lateral acceleration lets go (measured 0.08).
+    # measured one; the departure alone holds the path on after the steer. The ECU's filter: 0.47 deg RMS from
+    # 5.5 s on without the gate on the peak-held lateral acceleration, 0.09 with it. (The logs' filter, whose
+    # yaw row loosens with v r and whose kinematic sideslip noise is lower, leaves little error to hold the
+    # path: 0.040 without the gate, 0.024 with it.)
     from evstab.studies.estimation_mb import drives
     p = load_vehicle("commonroad-3")
     name, man, mu, sens, _ = drives(p)[1]
     log = simulate(p, "commonroad-mb:3", man, sensors=sens, seed=3).log_columns()
     after = log["t"] >= 5.5
-    d = design_filter("dakf", p)
+    d = design_filter("dakf", p, control=True)
     held = dataclasses.replace(d, noise=dataclasses.replace(d.noise, kinematic_ay_quiet=1e-9))
     rms = {k: np.degrees(np.sqrt(np.mean(((run_estimator(x, log)["beta"] - log["beta_true"])[after]) ** 2)))
            for k, x in (("gate", d), ("no gate", held))}

@@ -87,6 +87,74 @@ def test_accelerometer_noise_estimate_and_share():
             assert 0.3 < s < 0.7
 
 
+@pytest.mark.parametrize("dt", [1e-3, 5e-3, 0.02])
+def test_the_low_passed_noise_is_the_two_lags_impulse_energy(dt):
+    """``low_passed_noise``: the standard deviation of white noise after the two lags. Cross-checked against
+    scipy's impulse response of the same filter (``lfilter`` with ``b = [a]``, ``a = [1, a - 1]``, twice; its
+    energy to 1e-12) and against the lags run on 200,000 seeded samples of unit noise (the sample variance of
+    correlated samples: about 2 % spread at these lengths, 6 % is 3 sigma)."""
+    from evstab.toolkit.estimation import kinematic_path
+    d = design_filter("dakf", load_vehicle("compact-ev"))
+    a = kinematic_path.low_pass_alpha(d, dt)
+    imp = np.zeros(20000)
+    imp[0] = 1.0
+    h = signal.lfilter([a], [1.0, a - 1.0], signal.lfilter([a], [1.0, a - 1.0], imp))
+    sd = kinematic_path.low_passed_noise(d, 4.0, dt)
+    assert sd == pytest.approx(2.0 * np.sqrt(np.sum(h * h)), rel=1e-9)
+    y = signal.lfilter([a], [1.0, a - 1.0], signal.lfilter([a], [1.0, a - 1.0],
+                                                          np.random.default_rng(7).standard_normal(200000)))
+    assert np.std(y[5000:]) == pytest.approx(sd / 2.0, rel=0.06)
+    # the small-alpha limit a / 4 (1 kHz, 5 Hz: a = 0.030, exact 0.0874 against sqrt(a/4) = 0.0871)
+    if dt == 1e-3:
+        assert sd / 2.0 == pytest.approx(np.sqrt(a / 4.0), rel=0.01)
+
+
+def test_the_thresholds_rise_with_the_vibration():
+    """``kinematic_noise_sigmas``: with an accelerometer of 4 m/s^2 per sample at 1 kHz (fully low-passed),
+    a departure of 1.2 m/s^2 held for 1 s engages the path fully with the thresholds as set (0.4 -> 0.8), and
+    not at all with three standard deviations of the low-passed noise added to both (3 x 4 x 0.0874 = 1.05:
+    1.45 -> 1.85); at 0.25 m/s^2 of noise (below accel_noise_on, no low-pass) nothing moves."""
+    from evstab.toolkit.estimation import kalman, kinematic_path
+    p = load_vehicle("compact-ev")
+
+    def weight(sigmas, noise_sd):
+        d = design_filter("dakf", p, dataclasses.replace(estimation_noise(), kinematic_noise_sigmas=sigmas))
+        lay = kinematic_path.KINEMATIC_LP
+        ks = lay.as_dict(lay.zeros())
+        ks.update(ay_noise=noise_sd ** 2, dev=1.2, ay_level=10.0, dep_lp=1.2, dep_lp1=1.2, ay_lp=10.0, ay_lp1=10.0,
+                  ay_last=10.0)
+        g = kalman.INPUTS.unpack(kalman.INPUTS.pack({"dt": 1e-3, "ay": 10.0}, fill=0.0))
+        x = np.zeros(d.n)
+        a_row = [0.0] * d.n  # a model that asks for no lateral acceleration: the departure is the reading
+        w, *_ = kinematic_path.weight(d, a_row, [0.0, 0.0], np.ones((d.n, 1)), x, np.zeros(2), g, 20.0, 1.0,
+                                      lay.pack(ks), np)
+        return float(w)
+    assert weight(0.0, 4.0) == 1.0
+    assert weight(3.0, 4.0) == 0.0
+    assert weight(3.0, 0.25) == weight(0.0, 0.25)
+
+
+def test_the_yaw_row_loosens_with_the_lateral_acceleration():
+    """``yaw_model_ay``: one predict from a zero covariance at 20 m/s, the gyro gated off (``gyro_ok`` 0) and
+    no fix: the yaw rate's variance is its process noise times dt, doubled where the estimated yaw rate makes
+    ``v r`` equal to the setting (1 + 1^4) and 17 times at twice it (1 + 2^4), whichever the turn's sign."""
+    from evstab.toolkit.estimation import kalman
+    p = load_vehicle("compact-ev")
+    d = design_filter("dakf", p)
+    nz, lay, ir, v = d.noise, kalman.layout(d), d.index("yaw_rate"), 20.0
+
+    def var_r(rate):
+        zs = lay.as_dict(kalman.initial_state(d, yaw_rate0=rate))
+        zs["P"] = np.zeros(d.n * d.n)
+        u = kalman.INPUTS.pack({"dt": 1e-3, "speed": v, "hdop": 1.0, "gyro_ok": 0.0, "yaw_rate": rate}, fill=0.0)
+        z1, _ = kalman.step(d, lay.pack(zs), u)
+        return lay.unpack(z1).P.reshape(d.n, d.n, order="F")[ir, ir]
+    base = nz.q_yaw_rate * 1e-3
+    assert var_r(0.0) == pytest.approx(base, rel=1e-9)
+    assert var_r(nz.yaw_model_ay / v) == pytest.approx(2.0 * base, rel=1e-9)
+    assert var_r(-2.0 * nz.yaw_model_ay / v) == pytest.approx(17.0 * base, rel=1e-9)
+
+
 Q = np.radians(1.28)  # the ReV-StED CAN yaw rate's resolution
 
 
@@ -155,9 +223,9 @@ def test_saturation_evidence(ay, model, plain, overpredict):
 def test_overprediction_only_ignores_a_stiffness_set_too_low():
     """With the nominal cornering stiffness 40 % low the linear model asks less lateral acceleration than the car
     has in a 4.8 m/s^2 lane change at 80 km/h: the plain departure engages the kinematic path (the estimate moves
-    by up to 0.92 deg from the filter without the path), over-prediction only hardly does (0.0066 deg, in the
-    transients where the estimate's model leads). Here the engagement helped: 0.101 deg RMS with the plain
-    departure, 0.143 with over-prediction only, 0.143 without the path; what the setting costs a car whose
+    by up to 0.94 deg from the filter without the path), over-prediction only hardly does (0.0025 deg, in the
+    transients where the estimate's model leads). Here the engagement helped: 0.100 deg RMS with the plain
+    departure, 0.140 with over-prediction only, 0.139 without the path; what the setting costs a car whose
     model is too soft."""
     p = load_vehicle("compact-ev")
     low = dataclasses.replace(p, cornering_stiffness_front=0.6 * p.cornering_stiffness_front,
@@ -169,5 +237,5 @@ def test_overprediction_only_ignores_a_stiffness_set_too_low():
             for name, n, kin in (("plain", nz, None), ("over", dataclasses.replace(nz, kinematic_overpredict=1.0), None),
                                  ("none", nz, False))}
     assert np.max(np.abs(log["ay_true"])) > 4.0  # a lane change that asks for it (4.76 m/s^2)
-    assert np.degrees(np.abs(beta["plain"] - beta["none"]).max()) > 0.5  # 0.92 deg: the plain departure engaged
-    assert np.degrees(np.abs(beta["over"] - beta["none"]).max()) < 0.02  # 0.0066 deg: over-prediction hardly
+    assert np.degrees(np.abs(beta["plain"] - beta["none"]).max()) > 0.5  # 0.94 deg: the plain departure engaged
+    assert np.degrees(np.abs(beta["over"] - beta["none"]).max()) < 0.02  # 0.0025 deg: over-prediction hardly

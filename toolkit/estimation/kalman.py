@@ -250,6 +250,11 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         # goes to the yaw rate, not the bias)
         e_r = np.eye(n)[ir]
         q = q + _col(e_r, o) * ((1.0 - dyn) * o.fmax(nz.q_yaw_rate_held - q[ir], 0.0))
+    if nz.yaw_model_ay > 0:
+        # the yaw row's model error grows with the lateral acceleration, here v r (NoiseSettings.yaw_model_ay)
+        level = v_m * o.fabs(x[ir]) * (1.0 / nz.yaw_model_ay)
+        e_r = np.eye(n)[ir]
+        q = q + _col(e_r, o) * (q[ir] * ((level * level) * (level * level)))
     kin = None
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)

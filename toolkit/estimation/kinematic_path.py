@@ -140,14 +140,18 @@ def weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
     ay, roll = lateral_acceleration(d, g, ks, o)
     a_model = v_m * (_dot(_col(a_row, o), x, o) + b_row[0] * uin[0] + b_row[1] * uin[1] + x[ir])
     lp, share = {}, None
+    on, full = nz.kinematic_ay_on, nz.kinematic_ay_full
     if nz.kinematic_ay_cutoff > 0:
         lp, share, ay_seen, departure = accel_low_pass(d, ks, g, ay, a_model, v_m, x, o)
+        if nz.kinematic_noise_sigmas > 0:
+            shift = nz.kinematic_noise_sigmas * share * low_passed_noise(d, lp["ay_noise"], g.dt, o)
+            on, full = on + shift, full + shift
     else:
         ay_seen, departure = ay, ay - a_model
     dev = ks.dev + (saturation_evidence(d, ay_seen, departure, o) - ks.dev) * o.fmin(g.dt / nz.kinematic_dev_tau, 1.0)
     # peak hold with an exponential decay: rises with |a_y| at once, falls with kinematic_quiet_tau
     level = o.fmax(o.fabs(ay_seen), ks.ay_level * (1.0 - o.fmin(g.dt / nz.kinematic_quiet_tau, 1.0)))
-    w = o.fmin(o.fmax((dev - nz.kinematic_ay_on) / (nz.kinematic_ay_full - nz.kinematic_ay_on), 0.0), 1.0) * dyn
+    w = o.fmin(o.fmax((dev - on) / (full - on), 0.0), 1.0) * dyn
     # no tyre saturates while the car hardly accelerates sideways: the path lets go however far the
     # estimate's model departs (a sideslip error left by a slide would otherwise hold it on)
     w = w * o.fmin(o.fmax(level / nz.kinematic_ay_quiet - 1.0, 0.0), 1.0)
@@ -188,6 +192,22 @@ def saturation_evidence(d: FilterDesign, ay, departure, o=NUMPY):
     return same * o.fmax(o.fabs(model) - o.fabs(ay), 0.0) + (1.0 - same) * dep
 
 
+def low_pass_alpha(d: FilterDesign, dt):
+    """The gain per sample of each of the low-pass's two first-order lags (backward Euler at the corner
+    frequency ``kinematic_ay_cutoff``)."""
+    return dt / (dt + 1.0 / (2.0 * np.pi * d.noise.kinematic_ay_cutoff))
+
+
+def low_passed_noise(d: FilterDesign, variance, dt, o=NUMPY):
+    """The standard deviation of white noise of ``variance`` per sample after the low-pass's two lags: the sum
+    of the squared impulse response ``a^2 (k + 1) b^k`` (``a`` :func:`low_pass_alpha`, ``b = 1 - a``) is
+    ``a^4 (1 + b^2) / (1 - b^2)^3``, about ``a / 4`` for a corner far below the sample rate."""
+    a = low_pass_alpha(d, dt)
+    b2 = (1.0 - a) * (1.0 - a)
+    c = 1.0 - b2
+    return o.sqrt(o.fmax(variance, 0.0) * (a * a * a * a) * (1.0 + b2) / (c * c * c))
+
+
 def accel_low_pass(d: FilterDesign, ks, g, ay, a_model, v_m, x, o):
     """What the kinematic path reads from a noisy accelerometer (``kinematic_ay_cutoff`` set).
 
@@ -205,7 +225,7 @@ def accel_low_pass(d: FilterDesign, ks, g, ay, a_model, v_m, x, o):
     noise = ks.ay_noise + (0.5 * diff * diff - ks.ay_noise) * o.fmin(g.dt / nz.accel_noise_tau, 1.0)
     sd = o.sqrt(o.fmax(noise, 0.0))
     share = o.fmin(o.fmax((sd - nz.accel_noise_on) / (nz.accel_noise_full - nz.accel_noise_on), 0.0), 1.0)
-    alpha = g.dt / (g.dt + 1.0 / (2.0 * np.pi * nz.kinematic_ay_cutoff))
+    alpha = low_pass_alpha(d, g.dt)
     lp = {"ay_last": ay, "ay_noise": noise}
     lp["ay_lp1"] = ks.ay_lp1 + alpha * (ay - ks.ay_lp1)
     lp["ay_lp"] = ks.ay_lp + alpha * (lp["ay_lp1"] - ks.ay_lp)
