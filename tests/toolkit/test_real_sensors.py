@@ -155,6 +155,33 @@ def test_the_yaw_row_loosens_with_the_lateral_acceleration():
     assert var_r(-2.0 * nz.yaw_model_ay / v) == pytest.approx(17.0 * base, rel=1e-9)
 
 
+def test_beta_std_carries_the_models_error():
+    """``beta_model_std`` / ``beta_model_rel``: the output ``beta_std`` is the filter's sideslip variance plus,
+    in quadrature, ``beta_model_std (v |r| / beta_model_ay)^2`` and ``beta_model_rel |beta|``; the filter's
+    state and covariance are those of the filter without them. Checked on one step from a chosen state:
+    20 m/s, 0.35 rad/s (v r = 7 m/s^2 = beta_model_ay: the full 0.5 deg), sideslip 0.05 rad (10 %: 0.005)."""
+    from evstab.toolkit.estimation import kalman
+    p = load_vehicle("compact-ev")
+    d = design_filter("dakf", p)
+    plain = design_filter("dakf", p, dataclasses.replace(d.noise, beta_model_std=0.0, beta_model_rel=0.0))
+    lay = kalman.layout(d)
+    ib, ir = d.index("beta"), d.index("yaw_rate")
+    zs = lay.as_dict(kalman.initial_state(d, yaw_rate0=0.35))
+    zs["x"] = zs["x"].copy()
+    zs["x"][ib] = 0.05
+    u = kalman.INPUTS.pack({"dt": 1e-3, "speed": 20.0, "hdop": 1.0, "gyro_ok": 0.0, "yaw_rate": 0.35}, fill=0.0)
+    z1, y1 = kalman.step(d, lay.pack(zs), u)
+    z0, y0 = kalman.step(plain, lay.pack(zs), u)
+    np.testing.assert_array_equal(z1, z0)  # the filter itself is untouched
+    x, P = lay.unpack(z1).x, lay.unpack(z1).P.reshape(d.n, d.n, order="F")
+    lev = 20.0 * abs(x[ir]) / d.noise.beta_model_ay
+    want = np.sqrt(P[ib, ib] + (d.noise.beta_model_std * lev ** 2) ** 2 + (d.noise.beta_model_rel * x[ib]) ** 2)
+    out, out0 = kalman.OUTPUTS.as_dict(y1), kalman.OUTPUTS.as_dict(y0)
+    assert out["beta_std"] == pytest.approx(want, rel=1e-12)
+    assert out0["beta_std"] == pytest.approx(np.sqrt(P[ib, ib]), rel=1e-12)
+    assert d.noise.beta_model_std == pytest.approx(np.radians(0.5)) and lev == pytest.approx(1.0, rel=0.01)
+
+
 Q = np.radians(1.28)  # the ReV-StED CAN yaw rate's resolution
 
 

@@ -408,7 +408,14 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     if adapts(d):
         est["noise_scale"] = qscale
     beta = significant_sideslip(d, x, P, o) if conditions_sideslip(d) else x[ib]
-    y = outputs(o, v, beta=beta, yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(o.fmax(P[ib, ib], 0.0)), **est,
+    var_b = o.fmax(P[ib, ib], 0.0)
+    if nz.beta_model_std > 0:
+        # the linear model's own error in a turn, which the filter's covariance does not hold
+        lev = v_m * o.fabs(x[ir]) * (1.0 / nz.beta_model_ay)
+        var_b = var_b + (nz.beta_model_std * lev * lev) * (nz.beta_model_std * lev * lev)
+    if nz.beta_model_rel > 0:
+        var_b = var_b + (nz.beta_model_rel * x[ib]) * (nz.beta_model_rel * x[ib])
+    y = outputs(o, v, beta=beta, yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(var_b), **est,
                 gps_used=o.fmax(accept, first), nis=o.if_else(usable > 0.5, nis, nan),
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
                 gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))

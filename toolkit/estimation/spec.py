@@ -113,6 +113,15 @@ class NoiseSettings:
     in it). The linear tyre's force error grows with the square of the lateral acceleration, and with it
     the error of the yaw model, which a tight yaw row hands to the sideslip through the gyro's innovations.
     0 = off."""
+    beta_model_std: float = 0.0
+    """[rad] ``beta_std`` output only (the filter's covariance and estimate unchanged): the linear model's
+    sideslip error in a turn, ``beta_model_std (v |r| / beta_model_ay)^2``, added in quadrature (the force
+    error of a tyre's curve grows with the square of its slip angle); 0 = none."""
+    beta_model_ay: float = 7.0
+    """[m/s^2] The lateral acceleration ``v r`` at which that error is ``beta_model_std``."""
+    beta_model_rel: float = 0.0
+    """[-] ``beta_std`` output only: the linear model's sideslip error as this share of the estimated sideslip
+    (a stiffness off by 10 % moves a steady turn's sideslip by about as much), added in quadrature."""
     q_yaw: float = 1e-8
     q_d1: float = 0.02
     q_d2: float = 0.01
@@ -284,6 +293,8 @@ class NoiseSettings:
             v = getattr(self, f.name)
             if not (np.isfinite(v) and v >= 0):
                 raise ModelError(f"noise setting '{f.name}' must be a finite number >= 0, got {v!r}")
+        if self.beta_model_ay <= 0:
+            raise ModelError(f"noise setting 'beta_model_ay' must be > 0 m/s^2, got {self.beta_model_ay!r}")
         if self.adapt_min <= 0:
             raise ModelError(f"noise setting 'adapt_min' must be > 0, got {self.adapt_min!r}")
         if self.adapt_max < self.adapt_min:
@@ -387,7 +398,8 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
                          d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
                          adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1,
                          kinematic_ay_cutoff=5.0, disturbance_chi2_on=2.0, disturbance_chi2_full=6.0,
-                         kinematic_noise_sigmas=3.0, q_beta_kinematic=0.0075, yaw_model_ay=7.0)
+                         kinematic_noise_sigmas=3.0, q_beta_kinematic=0.0075, yaw_model_ay=7.0,
+                         beta_model_std=np.deg2rad(0.5), beta_model_rel=0.1)
 
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
