@@ -67,6 +67,7 @@ VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0
             "dakf, path thresholds not raised by the noise": ("dakf", {"kinematic_noise_sigmas": 0.0}),
             "dakf, the ECU's kinematic sideslip noise": ("dakf", {"q_beta_kinematic": 0.02}),
             "dakf, yaw row not loosened": ("dakf", {"yaw_model_ay": 0.0}),
+            "dakf, yaw row not loosened with the steer": ("dakf", {"yaw_model_steer": 0.0}),
             "dakf, beta_std without the model's error": ("dakf", {"beta_model_std": 0.0, "beta_model_rel": 0.0}),
             "dakf, bias held in turns": ("dakf", {"bias_learn_rate": BIAS_HELD_RATE}),
             "dakf, over-prediction only": ("dakf", {"kinematic_overpredict": 1.0})}
@@ -74,7 +75,7 @@ VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0
 undone, each what it does on these drives -- the accelerometer's low-pass (``kinematic_ay_cutoff``), the
 kinematic path's thresholds raised by the accelerometer's noise (``kinematic_noise_sigmas``), its sideslip noise
 (``q_beta_kinematic``, the ECU's 0.02), the yaw row loosened with the lateral acceleration
-(``yaw_model_ay``), ``beta_std``'s allowance for the linear model's error (``beta_model_std``,
+(``yaw_model_ay``) and with the steer (``yaw_model_steer``), ``beta_std``'s allowance for the linear model's error (``beta_model_std``,
 ``beta_model_rel``) -- and two settings that are off by default: the gyro bias held in turns
 (``bias_learn_rate`` :data:`BIAS_HELD_RATE`), the kinematic path engaged only where the model over-predicts the
 lateral acceleration (``kinematic_overpredict``)."""

@@ -137,22 +137,27 @@ def test_the_thresholds_rise_with_the_vibration():
 def test_the_yaw_row_loosens_with_the_lateral_acceleration():
     """``yaw_model_ay``: one predict from a zero covariance at 20 m/s, the gyro gated off (``gyro_ok`` 0) and
     no fix: the yaw rate's variance is its process noise times dt, doubled where the estimated yaw rate makes
-    ``v r`` equal to the setting (1 + 1^4) and 17 times at twice it (1 + 2^4), whichever the turn's sign."""
+    ``v r`` equal to the setting (1 + 1^4) and 17 times at twice it (1 + 2^4), whichever the turn's sign; and
+    ``yaw_model_steer`` multiplies by the same law of the road-wheel angle."""
     from evstab.toolkit.estimation import kalman
     p = load_vehicle("compact-ev")
     d = design_filter("dakf", p)
     nz, lay, ir, v = d.noise, kalman.layout(d), d.index("yaw_rate"), 20.0
 
-    def var_r(rate):
+    def var_r(rate, steer=0.0):
         zs = lay.as_dict(kalman.initial_state(d, yaw_rate0=rate))
         zs["P"] = np.zeros(d.n * d.n)
-        u = kalman.INPUTS.pack({"dt": 1e-3, "speed": v, "hdop": 1.0, "gyro_ok": 0.0, "yaw_rate": rate}, fill=0.0)
+        u = kalman.INPUTS.pack({"dt": 1e-3, "speed": v, "hdop": 1.0, "gyro_ok": 0.0, "yaw_rate": rate, "steer": steer},
+                               fill=0.0)
         z1, _ = kalman.step(d, lay.pack(zs), u)
         return lay.unpack(z1).P.reshape(d.n, d.n, order="F")[ir, ir]
     base = nz.q_yaw_rate * 1e-3
     assert var_r(0.0) == pytest.approx(base, rel=1e-9)
     assert var_r(nz.yaw_model_ay / v) == pytest.approx(2.0 * base, rel=1e-9)
     assert var_r(-2.0 * nz.yaw_model_ay / v) == pytest.approx(17.0 * base, rel=1e-9)
+    # yaw_model_steer: the road-wheel angle multiplies it by 1 + (|steer| / yaw_model_steer)^4 on top
+    assert var_r(0.0, -nz.yaw_model_steer) == pytest.approx(2.0 * base, rel=1e-9)
+    assert var_r(nz.yaw_model_ay / v, 2.0 * nz.yaw_model_steer) == pytest.approx(2.0 * 17.0 * base, rel=1e-9)
 
 
 def test_beta_std_carries_the_models_error():
@@ -180,6 +185,21 @@ def test_beta_std_carries_the_models_error():
     assert out["beta_std"] == pytest.approx(want, rel=1e-12)
     assert out0["beta_std"] == pytest.approx(np.sqrt(P[ib, ib]), rel=1e-12)
     assert d.noise.beta_model_std == pytest.approx(np.radians(0.5)) and lev == pytest.approx(1.0, rel=0.01)
+
+
+def test_a_quantised_gyro_adds_its_rounding_to_the_gyro_noise():
+    """``runner.quantised_gyro_noise``: a yaw rate in steps of 1.28 deg/s (ReV-StED's CAN signal) is rounded by
+    up to half a step, uniformly: the filter's gyro noise becomes ``hypot(gyro_std, q / sqrt(12))``; a MEMS
+    gyro's (steps far below the monitor's 1e-3 rad/s) leaves the design as it is, the same object."""
+    from evstab.toolkit.estimation.runner import quantised_gyro_noise
+    d = design_filter("dakf", load_vehicle("compact-ev"))
+    q = np.radians(1.28)
+    t = np.arange(500) * 0.02
+    r = np.radians(10.0) * np.sin(0.5 * t)
+    wide = quantised_gyro_noise(d, {"t": t, "yaw_rate": q * np.round(r / q)})
+    assert wide.noise.gyro_std == pytest.approx(np.hypot(d.noise.gyro_std, q / np.sqrt(12.0)), rel=1e-12)
+    mems = r + 0.004 * np.random.default_rng(4).standard_normal(len(t))
+    assert quantised_gyro_noise(d, {"t": t, "yaw_rate": mems}) is d
 
 
 Q = np.radians(1.28)  # the ReV-StED CAN yaw rate's resolution
@@ -252,7 +272,7 @@ def test_overprediction_only_ignores_a_stiffness_set_too_low():
     has in a 4.8 m/s^2 lane change at 80 km/h: the plain departure engages the kinematic path (the estimate moves
     by up to 0.94 deg from the filter without the path), over-prediction only hardly does (0.0025 deg, in the
     transients where the estimate's model leads). Here the engagement helped: 0.100 deg RMS with the plain
-    departure, 0.140 with over-prediction only, 0.139 without the path; what the setting costs a car whose
+    departure, 0.140 with over-prediction only, 0.140 without the path; what the setting costs a car whose
     model is too soft."""
     p = load_vehicle("compact-ev")
     low = dataclasses.replace(p, cornering_stiffness_front=0.6 * p.cornering_stiffness_front,

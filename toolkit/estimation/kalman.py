@@ -255,6 +255,10 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         level = v_m * o.fabs(x[ir]) * (1.0 / nz.yaw_model_ay)
         e_r = np.eye(n)[ir]
         q = q + _col(e_r, o) * (q[ir] * ((level * level) * (level * level)))
+    if nz.yaw_model_steer > 0:
+        # ... and with the road-wheel angle (NoiseSettings.yaw_model_steer)
+        ls = o.fabs(steer) * (1.0 / nz.yaw_model_steer)
+        q = q + _col(np.eye(n)[ir], o) * (q[ir] * ((ls * ls) * (ls * ls)))
     kin = None
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)

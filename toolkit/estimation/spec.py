@@ -122,6 +122,11 @@ class NoiseSettings:
     beta_model_rel: float = 0.0
     """[-] ``beta_std`` output only: the linear model's sideslip error as this share of the estimated sideslip
     (a stiffness off by 10 % moves a steady turn's sideslip by about as much), added in quadrature."""
+    yaw_model_steer: float = 0.0
+    """[rad] The yaw-rate row's process noise is further multiplied by ``1 + (|steer| / yaw_model_steer)^4``: a
+    large road-wheel angle brings what the single-track model leaves out (Ackermann geometry, the two front
+    wheels' different slip angles, steering compliance), and in tight turns at low speed the yaw model is
+    off although the lateral acceleration is small. 0 = off."""
     q_yaw: float = 1e-8
     q_d1: float = 0.02
     q_d2: float = 0.01
@@ -386,9 +391,10 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     reads a vibrating accelerometer through a 5 Hz low-pass (``kinematic_ay_cutoff``; a quiet one as it
     comes), its thresholds raised by three standard deviations of what noise passes the low-pass
     (``kinematic_noise_sigmas``), with under half the ECU's sideslip noise where it has taken over
-    (``q_beta_kinematic``), and the yaw row loosens with the lateral acceleration (``yaw_model_ay``). These
-    three are what measured drives of a real car asked for (``studies/real_drives.py``); together they leave
-    every cell of ``estimation_mb`` within 0.02 deg RMS."""
+    (``q_beta_kinematic``), the yaw row loosens with the lateral acceleration and the road-wheel angle
+    (``yaw_model_ay``, ``yaw_model_steer``), and ``beta_std`` carries the linear model's own error
+    (``beta_model_std``, ``beta_model_rel``). These are what measured drives of a real car asked for
+    (``studies/real_drives.py``); together they leave every cell of ``estimation_mb`` within 0.02 deg RMS."""
     s = sensors if sensors is not None else SensorConfig()
     q_d1, q_d2, tau = 8e-5, 4e-5, NoiseSettings.disturbance_tau
     # the disturbances start with the stationary spread of their Gauss-Markov processes, q tau / 2: a wider
@@ -398,7 +404,7 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
                          d1_init_std=float(np.sqrt(q_d1 * tau / 2)), d2_init_std=float(np.sqrt(q_d2 * tau / 2)),
                          adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1,
                          kinematic_ay_cutoff=5.0, disturbance_chi2_on=2.0, disturbance_chi2_full=6.0,
-                         kinematic_noise_sigmas=3.0, q_beta_kinematic=0.0075, yaw_model_ay=7.0,
+                         kinematic_noise_sigmas=3.0, q_beta_kinematic=0.0075, yaw_model_ay=7.0, yaw_model_steer=0.1,
                          beta_model_std=np.deg2rad(0.5), beta_model_rel=0.1)
 
 
