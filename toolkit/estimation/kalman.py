@@ -250,15 +250,11 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
         # goes to the yaw rate, not the bias)
         e_r = np.eye(n)[ir]
         q = q + _col(e_r, o) * ((1.0 - dyn) * o.fmax(nz.q_yaw_rate_held - q[ir], 0.0))
-    if nz.yaw_model_ay > 0:
-        # the yaw row's model error grows with the lateral acceleration, here v r (NoiseSettings.yaw_model_ay)
-        level = v_m * o.fabs(x[ir]) * (1.0 / nz.yaw_model_ay)
-        e_r = np.eye(n)[ir]
-        q = q + _col(e_r, o) * (q[ir] * ((level * level) * (level * level)))
-    if nz.yaw_model_steer > 0:
-        # ... and with the road-wheel angle (NoiseSettings.yaw_model_steer)
-        ls = o.fabs(steer) * (1.0 / nz.yaw_model_steer)
-        q = q + _col(np.eye(n)[ir], o) * (q[ir] * ((ls * ls) * (ls * ls)))
+    # the yaw row's model error grows with the lateral acceleration, here v r, and with the road-wheel angle
+    # (NoiseSettings.yaw_model_ay, yaw_model_steer): each multiplies its noise by 1 + (its measure / its scale)^4
+    for scale, measure in ((nz.yaw_model_ay, v_m * o.fabs(x[ir])), (nz.yaw_model_steer, o.fabs(steer))):
+        if scale > 0:
+            q = q + _col(np.eye(n)[ir], o) * (q[ir] * _fourth(measure * (1.0 / scale)))
     kin = None
     if d.kinematic:
         # not while the estimate settles after the first fix (a departure then is not the tyres)
@@ -415,8 +411,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     var_b = o.fmax(P[ib, ib], 0.0)
     if nz.beta_model_std > 0:
         # the linear model's own error in a turn, which the filter's covariance does not hold
-        lev = v_m * o.fabs(x[ir]) * (1.0 / nz.beta_model_ay)
-        var_b = var_b + (nz.beta_model_std * lev * lev) * (nz.beta_model_std * lev * lev)
+        var_b = var_b + nz.beta_model_std * nz.beta_model_std * _fourth(v_m * o.fabs(x[ir]) * (1.0 / nz.beta_model_ay))
     if nz.beta_model_rel > 0:
         var_b = var_b + (nz.beta_model_rel * x[ib]) * (nz.beta_model_rel * x[ib])
     y = outputs(o, v, beta=beta, yaw_rate=x[ir], yaw=x[iy], beta_std=o.sqrt(var_b), **est,
@@ -424,6 +419,11 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
                 bias_alarm=alarm if watches_bias(d) else 0.0 * v, course_resid=o.if_else(usable > 0.5, resid, nan),
                 gyro_resid=gyro_resid, gyro_var=gyro_var, course_var=o.if_else(usable > 0.5, S, nan))
     return z_next, y
+
+
+def _fourth(a):
+    """``a^4`` as two products (no power in the generated code)."""
+    return (a * a) * (a * a)
 
 
 BIAS_UNKNOWN = 0.5

@@ -9,9 +9,7 @@ Without a C compiler the same casadi function runs in casadi's virtual machine;
 
 from __future__ import annotations
 
-import dataclasses
-
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import casadi as ca
@@ -209,21 +207,22 @@ def log_inputs(cols: dict, dt0: float = 1e-3, gyro_ok=None) -> np.ndarray:
                                dt0=dt0)
 
 
-def quantised_gyro_noise(d: FilterDesign, cols) -> FilterDesign:
+def quantised_gyro_noise(d: FilterDesign, cols, step: float | None = None) -> FilterDesign:
     """``d`` with its gyro noise widened by the log's yaw-rate resolution where the signal is quantised (its
     smallest step at least the monitor's ``quantised_step``, a CAN signal's): a reading rounded to steps of
     ``q`` is off by up to ``q / 2``, uniformly, so its variance grows by ``q^2 / 12`` (ReV-StED's 1.28 deg/s:
-    6.4 mrad/s of standard deviation beside the 4 of a MEMS gyro's noise). ``d`` as it is otherwise."""
+    6.4 mrad/s of standard deviation beside the 4 of a MEMS gyro's noise). ``d`` as it is otherwise. ``step``:
+    the monitor's ``quantised_step`` (None: its default), so that the filter and the monitor call one signal
+    quantised."""
     from .monitor import MonitorSettings, gyro_quantum
     gyro = np.asarray(cols.get("yaw_rate", []), float)
     gyro = gyro[np.isfinite(gyro)]
     if len(gyro) < 2 or "yaw_rate" not in d.states:
         return d
     q = float(gyro_quantum(gyro)[-1])
-    if not (np.isfinite(q) and q >= MonitorSettings().quantised_step):
+    if not (np.isfinite(q) and q >= (MonitorSettings().quantised_step if step is None else step)):
         return d
-    return dataclasses.replace(d, noise=dataclasses.replace(d.noise, gyro_std=float(np.hypot(d.noise.gyro_std,
-                                                                                              q / np.sqrt(12.0)))))
+    return replace(d, noise=replace(d.noise, gyro_std=float(np.hypot(d.noise.gyro_std, q / np.sqrt(12.0)))))
 
 
 def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None, bias=None) -> Estimate:
@@ -242,7 +241,7 @@ def run_estimator(d: FilterDesign, log, backend: str = "auto", *, monitor=None, 
         screened = screen(cols, monitor if isinstance(monitor, MonitorSettings) else None)
         cols = screened.columns
     get = cols.get
-    d = quantised_gyro_noise(d, cols)
+    d = quantised_gyro_noise(d, cols, monitor.quantised_step if hasattr(monitor, "quantised_step") else None)
     U = log_inputs(cols, d.dt_nominal, None if screened is None else screened.gyro_ok)
     cf = compiled_filter(d, backend)
     z0 = initial_state(d, float(kalman.INPUTS.columns(U)["yaw_rate"][0]), bias)
