@@ -69,6 +69,8 @@ VARIANTS = {"dakf, accelerometer read raw": ("dakf", {"kinematic_ay_cutoff": 0.0
             "dakf, yaw row not loosened": ("dakf", {"yaw_model_ay": 0.0}),
             "dakf, yaw row not loosened with the steer": ("dakf", {"yaw_model_steer": 0.0}),
             "dakf, beta_std without the model's error": ("dakf", {"beta_model_std": 0.0, "beta_model_rel": 0.0}),
+            "dakf, yaw row released through a 0.1 s lag": ("dakf", {"kinematic_yaw_release": 0.1}),
+            "dakf, a quarter less of an under-prediction": ("dakf", {"kinematic_overpredict": 0.25}),
             "dakf, bias held in turns": ("dakf", {"bias_learn_rate": BIAS_HELD_RATE}),
             "dakf, over-prediction only": ("dakf", {"kinematic_overpredict": 1.0})}
 """Rows beside the methods: ``dakf`` with one of its log settings (:func:`toolkit.estimation.spec.estimation_noise`)
@@ -76,9 +78,10 @@ undone, each what it does on these drives -- the accelerometer's low-pass (``kin
 kinematic path's thresholds raised by the accelerometer's noise (``kinematic_noise_sigmas``), its sideslip noise
 (``q_beta_kinematic``, the ECU's 0.02), the yaw row loosened with the lateral acceleration
 (``yaw_model_ay``) and with the steer (``yaw_model_steer``), ``beta_std``'s allowance for the linear model's error (``beta_model_std``,
-``beta_model_rel``) -- and two settings that are off by default: the gyro bias held in turns
-(``bias_learn_rate`` :data:`BIAS_HELD_RATE`), the kinematic path engaged only where the model over-predicts the
-lateral acceleration (``kinematic_overpredict``)."""
+``beta_model_rel``) -- and settings that are off by default: the yaw row's return to the model through a lag after
+the kinematic path lets go (``kinematic_yaw_release`` 0.1 s), the gyro bias held in turns (``bias_learn_rate``
+:data:`BIAS_HELD_RATE`), a departure where the car has more lateral acceleration than the model counted a quarter
+less (``kinematic_overpredict`` 0.25) or not at all (1)."""
 QUICK_SECONDS = 30.0
 """The quick run's excerpt of each GTI drive, from 2 s before the car first passes 3 m/s."""
 GTI = (("High_Speed", 200.0), ("Low_Speed", 200.0), ("High_Speed2", 1000.0))
@@ -268,7 +271,8 @@ def cold_starts(gti: list[dict], n: int = COLD_STARTS, seed: int = 0, quick: boo
     course of seed 0): the time until the error stays below :data:`SETTLE_DEG` for 1 s (inf: never). High_Speed
     and High_Speed2 are also started from a calibration (:mod:`toolkit.estimation.calibration`): the gyro bias
     the filter learnt over Low_Speed (45 s at rest, then tight turns) with the same production gyro and another
-    noise seed, at the same instants. ``gti``: the GTI drives of :func:`drives`, in their order."""
+    noise seed, at the same instants; and without the bias held in turns while the heading settles
+    (``NoiseSettings.bias_settle_hold`` 0). ``gti``: the GTI drives of :func:`drives`, in their order."""
     rows = []
     rng = np.random.default_rng(seed)
     low = emulate(gti[1]["cols"], Emulation(seed=CALIBRATION_SEED, **PRODUCTION_GYRO))
@@ -281,15 +285,17 @@ def cold_starts(gti: list[dict], n: int = COLD_STARTS, seed: int = 0, quick: boo
         moving = t[np.abs(cols["speed"]) > SCORE_SPEED]
         starts = rng.uniform(moving[0], t[-1] - (5.0 if quick else 15.0), n)
         d = design_filter(DEFAULT, drive["vehicle"])
-        for label, bias in ((drive["drive"], None), (f"{drive['drive']}, calibrated on Low_Speed", calibration)):
+        at_once = design_filter(DEFAULT, drive["vehicle"], dataclasses.replace(estimation_noise(), bias_settle_hold=0.0))
+        for label, bias, design in ((drive["drive"], None, d), (f"{drive['drive']}, calibrated on Low_Speed", calibration, d),
+                                    (f"{drive['drive']}, bias learnt in turns from the start", None, at_once)):
             if bias is not None and drive is gti[1]:
                 continue
             for t0 in starts:
                 k0 = int(np.searchsorted(t, t0))
                 part = {k: v[k0:] for k, v in cols.items()}
                 part["t"] = part["t"] - part["t"][0]
-                est = run_estimator(d, {k: v for k, v in part.items() if not k.endswith("_true")}, monitor=True,
-                                    bias=bias)
+                est = run_estimator(design, {k: v for k, v in part.items() if not k.endswith("_true")},
+                                    monitor=True, bias=bias)
                 err = np.abs(np.degrees(est["beta"] - part["beta_true"]))
                 fast = np.abs(part["speed"]) > SCORE_SPEED
                 rows.append({"drive": label, "start_s": float(t[k0]), "settle_s": settle_time(part["t"], err, fast),

@@ -46,8 +46,8 @@ def test_revsted_samples(rows):
     _, r = rows
     assert r[("ReV-StED ADMA (RTK course)", "as logged", "dakf")]["rms_deg"] < 0.35  # 0.26 measured
     assert r[("ReV-StED OBD (CAN)", "as logged", "dakf")]["gyro_stuck_rows"] == 0
-    # with the Correvit's reference moved to the vehicle file's CG (real_drives.sideslip_moved): 0.79 deg RMS
-    # on the first seed, mean NIS 1.81 (the quantised yaw rate's q^2 / 12 in the gyro noise: 0.84 without); the bound is the real-drives issue's target, the NIS its interval
+    # with the Correvit's reference moved to the vehicle file's CG (real_drives.sideslip_moved): 0.53 deg RMS
+    # on the first seed, mean NIS 1.31; the bound is the real-drives issue's target, the NIS its interval
     obd = r[("ReV-StED OBD (CAN)", "as logged", "dakf")]
     assert obd["rms_deg"] <= 1.0 and 0.5 <= obd["mean_nis"] <= 2.0, obd
 
@@ -66,14 +66,15 @@ def test_a_sideslip_moved_along_the_car_in_a_kinematic_turn():
 
 @pytest.fixture(scope="module")
 def gti_ablations():
-    """Whole GTI drives, reference gyro, the first emulation seed: ``dakf`` as it estimates on logs, and with two
-    of its log settings undone (``real_drives.VARIANTS``). RMS [deg] per drive."""
+    """Whole GTI drives, reference gyro, the first emulation seed: ``dakf`` as it estimates on logs, and with some
+    of its log settings undone or one of its options set (``real_drives.VARIANTS``). RMS and max [deg] per drive."""
     import dataclasses
 
     from evstab.toolkit.logs.emulate import Emulation, emulate
     from evstab.toolkit.estimation import design_filter, run_estimator
     from evstab.toolkit.estimation.spec import estimation_noise
-    undone = {"default": {}, "noise": {"kinematic_noise_sigmas": 0.0}, "steer": {"yaw_model_steer": 0.0}}
+    undone = {"default": {}, "noise": {"kinematic_noise_sigmas": 0.0}, "steer": {"yaw_model_steer": 0.0},
+              "release": {"kinematic_yaw_release": 0.1}}
     out = {}
     for drive in real_drives.drives(DATA)[:len(real_drives.GTI)]:
         cols = emulate(drive["cols"], Emulation(seed=0))
@@ -81,19 +82,55 @@ def gti_ablations():
         for label, kw in undone.items():
             est = run_estimator(design_filter("dakf", drive["vehicle"], dataclasses.replace(estimation_noise(), **kw)),
                                 log)
-            out[(drive["drive"], label)] = real_drives.errors(cols, est["beta"])["rms_deg"]
+            e = real_drives.errors(cols, est["beta"])
+            out[(drive["drive"], label)] = e["rms_deg"], e["max_deg"]
     return out
 
 
 def test_what_each_log_setting_does_on_the_gti_drives(gti_ablations):
-    """Measured (High_Speed, Low_Speed, High_Speed2; deg RMS): the default 0.38, 0.39, 0.78. The kinematic
-    path's thresholds not raised by the accelerometer's noise (``kinematic_noise_sigmas`` 0): the vibration
-    half-engages the path, 0.50 on High_Speed and 1.63 on High_Speed2. The yaw row not loosened with the road-wheel
-    angle (``yaw_model_steer`` 0): Low_Speed's tight turns at 5 m/s, 10 deg of steer, at 0.75. The bounds sit
-    between the measured pairs."""
-    r = gti_ablations
-    for name, default in (("GTI High_Speed", 0.38), ("GTI Low_Speed", 0.39), ("GTI High_Speed2", 0.78)):
+    """Measured (High_Speed, Low_Speed, High_Speed2; deg RMS / max): the default 0.376 / 1.31, 0.391 / 1.03,
+    0.782 / 7.88. The kinematic path's thresholds not raised by the accelerometer's noise
+    (``kinematic_noise_sigmas`` 0): the vibration half-engages the path, 0.496 on High_Speed and 1.626 on
+    High_Speed2. The yaw row not loosened with the road-wheel angle (``yaw_model_steer`` 0): Low_Speed's tight
+    turns at 5 m/s, 10 deg of steer, at 0.745. The yaw row returned to the model through a 0.1 s lag when the
+    kinematic path lets go (``kinematic_yaw_release``, off by default): High_Speed2's 7.88 deg peak, a
+    millisecond's throw of the sideslip by the INS yaw rate (read at 200 Hz, held at 1 kHz) through the model's
+    yaw row, becomes 2.39. The bounds sit between the measured pairs."""
+    r = {k: v[0] for k, v in gti_ablations.items()}
+    peak = {k: v[1] for k, v in gti_ablations.items()}
+    for name, default in (("GTI High_Speed", 0.376), ("GTI Low_Speed", 0.391), ("GTI High_Speed2", 0.782)):
         assert r[(name, "default")] < default + 0.05, (name, r)  # the default as measured, 0.05 for the compiler
-    assert r[("GTI High_Speed", "noise")] > 1.2 * r[("GTI High_Speed", "default")], r  # 0.50 against 0.38
-    assert r[("GTI High_Speed2", "noise")] > 1.5 * r[("GTI High_Speed2", "default")], r  # 1.63 against 0.78
-    assert r[("GTI Low_Speed", "steer")] > 1.5 * r[("GTI Low_Speed", "default")], r  # 0.75 against 0.39
+    assert r[("GTI High_Speed", "noise")] > 1.2 * r[("GTI High_Speed", "default")], r  # 0.496 against 0.376
+    assert r[("GTI High_Speed2", "noise")] > 1.5 * r[("GTI High_Speed2", "default")], r  # 1.626 against 0.782
+    assert r[("GTI Low_Speed", "steer")] > 1.5 * r[("GTI Low_Speed", "default")], r  # 0.745 against 0.391
+    assert peak[("GTI High_Speed2", "release")] < 0.5 * peak[("GTI High_Speed2", "default")], peak  # 2.39 against 7.88
+
+
+@pytest.mark.parametrize("start", [11.9, 41.9])
+def test_a_cold_start_in_a_hard_turn_settles(start):
+    """High_Speed2 (production gyro, the first seed's course) started at 11.9 s and at 41.9 s, each in a
+    12 m/s^2 turn: the error is below 1 deg for good within 3 s (1.7 s and 2.3 s measured). With the bias learnt
+    from the gyro from the first sample (``bias_settle_hold`` 0), the yaw model's error in the turn goes to the
+    bias (1-3 deg/s within the first second), the following fixes are gated, and the error stays above 1 deg
+    for 22 s and 35 s."""
+    import dataclasses
+
+    from evstab.toolkit.logs.emulate import PRODUCTION_GYRO, Emulation, emulate
+    from evstab.toolkit.estimation import design_filter, run_estimator
+    from evstab.toolkit.estimation.spec import estimation_noise
+    drive = real_drives.drives(DATA)[2]
+    assert drive["drive"] == "GTI High_Speed2"
+    cols = emulate(drive["cols"], Emulation(seed=0, **PRODUCTION_GYRO))
+    k0 = int(np.searchsorted(cols["t"], start))
+    part = {k: v[k0:] for k, v in cols.items()}
+    part["t"] = part["t"] - part["t"][0]
+    log = {k: v for k, v in part.items() if not k.endswith("_true")}
+    fast = np.abs(part["speed"]) > real_drives.SCORE_SPEED
+    settle = {}
+    for label, kw in (("default", {}), ("learnt at once", {"bias_settle_hold": 0.0})):
+        est = run_estimator(design_filter("dakf", drive["vehicle"], dataclasses.replace(estimation_noise(), **kw)),
+                            log, monitor=True)
+        err = np.abs(np.degrees(est["beta"] - part["beta_true"]))
+        settle[label] = real_drives.settle_time(part["t"], err, fast)
+    assert settle["default"] <= 3.0, settle  # the real-drives issue's bound
+    assert settle["learnt at once"] > 10.0, settle  # 22 s and 35 s

@@ -264,7 +264,7 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
             w_kin, q, kin, kin_state, lagged = kpath.weight(
                 d, [a_c.get((ib, j), 0.0) for j in range(n)], [b_c.get((ib, k), 0.0) for k in (0, 1)], q, x, uin,
                 g, v_m, settled, zs.kin, o)
-            E, Gu = kpath.transition(d, E, Gu, w_kin, dt, o, lagged)
+            E, Gu = kpath.transition(d, E, Gu, w_kin, dt, o, lagged, kpath.yaw_weight(d, w_kin, kin_state))
         else:
             A, B, q, kin, kin_state = kpath.blend(d, A, B, q, x, uin, g, v_m, settled, zs.kin, o)
     if not tabulated:
@@ -288,7 +288,8 @@ def step(d: FilterDesign, z, u, o=NUMPY, with_course: bool = True, moving: bool 
     learn = _bias_learning(d, x, P, gyro, o)
     hg = _col(gyro_row(d), o)
     gyro_resid = gyro - _dot(hg, x, o)
-    x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok, scale=learn)
+    x, P, gyro_var, _ = scalar_update(x, P, hg, gyro_resid, nz.gyro_std**2, o, n, gate=gyro_ok,
+                                      scale=_settling_bias(d, x, v_m, init, learn, o))
 
     # 3. standstill: the yaw rate is zero
     if d.standstill_update and not moving:
@@ -446,6 +447,21 @@ def _bias_learning(d: FilterDesign, x, P, gyro, o):
     f = o.fmax(f, unknown)
     e = np.eye(d.n)[ib]
     return _col(1.0 - e, o) + _col(e, o) * f
+
+
+def _settling_bias(d: FilterDesign, x, v_m, init, learn, o):
+    """The gain scale of this sample's gyro update: ``learn`` (:func:`_bias_learning`) with the bias's entry 0
+    while the heading settles (``init`` below ``1 + bias_settle_hold``: before the first fix and the seconds
+    after it) in a turn (``v |r|`` above ``bias_settle_ay``), ``NoiseSettings.bias_settle_hold``; ``learn`` as
+    it is where that is off."""
+    nz = d.noise
+    if not (d.bias and nz.bias_settle_hold > 0):
+        return learn
+    ib = d.index("gyro_bias")
+    hold = (init < 1.0 + nz.bias_settle_hold) * (v_m * o.fabs(x[d.index("yaw_rate")]) > nz.bias_settle_ay)
+    e = np.eye(d.n)[ib]
+    held = _col(1.0 - e, o) + _col(e, o) * (1.0 - hold)
+    return held if learn is None else learn * held
 
 
 def conditions_sideslip(d: FilterDesign) -> bool:

@@ -35,12 +35,18 @@ KINEMATIC_LP = Layout("kinematic path state with the accelerometer's low-pass", 
     Signal("rate_lp", "rad/s", "... and second lag"),
 ])
 """The kinematic path's state where ``NoiseSettings.kinematic_ay_cutoff`` is set (:func:`accel_low_pass`)."""
+RELEASE = Signal("w_yaw", "-", "the yaw-rate row's weight: the path's, peak-held and decaying (kinematic_yaw_release)")
+KINEMATIC_RELEASE = Layout("kinematic path state with the yaw row's release", list(KINEMATIC) + [RELEASE])
+KINEMATIC_LP_RELEASE = Layout("kinematic path state with the low-pass and the yaw row's release",
+                              list(KINEMATIC_LP) + [RELEASE])
 
 
 def kinematic_layout(d: FilterDesign) -> Layout:
     """The kinematic path's state layout of a design (:data:`KINEMATIC`, or :data:`KINEMATIC_LP` with the
-    accelerometer's low-pass)."""
-    return KINEMATIC_LP if d.noise.kinematic_ay_cutoff > 0 else KINEMATIC
+    accelerometer's low-pass; each with the yaw row's weight where ``kinematic_yaw_release`` is set)."""
+    lp, release = d.noise.kinematic_ay_cutoff > 0, d.noise.kinematic_yaw_release > 0
+    return {(False, False): KINEMATIC, (True, False): KINEMATIC_LP, (False, True): KINEMATIC_RELEASE,
+            (True, True): KINEMATIC_LP_RELEASE}[(lp, release)]
 
 
 def roll_compensation(p) -> float:
@@ -84,19 +90,22 @@ def blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o):
     ``kinematic_dev_tau``: ``w = 0`` up to ``kinematic_ay_on``, 1 from ``kinematic_ay_full``; and
     only while the lateral acceleration's peak-held magnitude is above ``kinematic_ay_quiet``.
     The row becomes ``(1 - w) row_model + w (a_y / v - r)``, its process noise
-    ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w) row_model`` with process noise
-    ``(1 - w) q_yaw_rate + w q_yaw_rate_kinematic`` (a random walk the gyro pins).
+    ``(1 - w) q_beta + w q_beta_kinematic``; the yaw-rate row ``(1 - w_r) row_model`` with process noise
+    ``(1 - w_r) q_yaw_rate + w_r q_yaw_rate_kinematic`` (a random walk the gyro pins), ``w_r`` the weight
+    itself or, with ``kinematic_yaw_release``, its peak-held decay (:func:`weight`).
     Returns ``(A, B, q, kinematic drive, next state per KINEMATIC)``."""
     n = d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
     w, q, kin, state, lagged = weight(d, [A[ib, j] for j in range(n)], [B[ib, 0], B[ib, 1]], q, x, uin,
                                                  g, v_m, dyn, kin_state, o)
+    w_r = yaw_weight(d, w, state)
     keep = 1.0 - w
+    keep_r = keep if w_r is w else 1.0 - w_r
     if o is not CASADI:
         A, B = A.copy(), B.copy()
     # both lateral rows leave the tyre model: beta' from the kinematics, r' a random walk that the gyro
     # pins (left on the model, the gyro's innovations would reach the sideslip through a21)
-    for i in (ib, ir):
+    for i, keep in ((ib, keep), (ir, keep_r)):
         for j in range(n):
             A[i, j] = A[i, j] * keep
         B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
@@ -105,26 +114,35 @@ def blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o):
     return A, B, q, kin, state
 
 
-def transition(d: FilterDesign, E, Gu, w, dt, o, lagged=None):
+def yaw_weight(d: FilterDesign, w, state):
+    """The yaw-rate row's weight: the path's ``w``, or with ``kinematic_yaw_release`` the peak-held one the
+    path's next ``state`` carries."""
+    return kinematic_layout(d).unpack(state).w_yaw if d.noise.kinematic_yaw_release > 0 else w
+
+
+def transition(d: FilterDesign, E, Gu, w, dt, o, lagged=None, w_r=None):
     """:func:`blend` on a tabulated transition (:mod:`toolkit.estimation.transition`): the
-    sideslip, yaw-rate and heading rows of ``E`` and ``G`` (the heading's through the yaw rate's)
-    scaled by ``1 - w``, and what the kinematics alone give added: ``-w dt`` where ``beta'`` takes
-    ``-r``, ``w dt`` where ``psi'`` takes ``r``. Exact for ``w`` 0 and 1; between them the blend of
-    the discretisations differs from the discretisation of the blend by terms of ``(A dt)^2``
-    (``tests/toolkit/test_transition.py``), far below the path's own modelling error."""
+    sideslip row of ``E`` and ``G`` scaled by ``1 - w``, the yaw-rate and heading rows (the heading's through
+    the yaw rate's) by ``1 - w_r`` (the yaw row's weight, :func:`yaw_weight`; None: ``w``), and what the
+    kinematics alone give added: ``-w dt`` where ``beta'`` takes ``-r``, ``w_r dt`` where ``psi'`` takes ``r``.
+    Exact for weights 0 and 1; between them the blend of the discretisations differs from the discretisation
+    of the blend by terms of ``(A dt)^2`` (``tests/toolkit/test_transition.py``), far below the path's own
+    modelling error."""
     n = d.n
     ib, ir = d.index("beta"), d.index("yaw_rate")
+    w_r = w if w_r is None else w_r
     keep = 1.0 - w
+    keep_r = keep if w_r is w else 1.0 - w_r
     if o is not CASADI:
         E, Gu = E.copy(), Gu.copy()
-    rows = (ib, ir, d.index("yaw")) if "yaw" in d.states else (ib, ir)
-    for i in rows:
+    rows = [(ib, keep), (ir, keep_r)] + ([(d.index("yaw"), keep_r)] if "yaw" in d.states else [])
+    for i, keep in rows:
         for j in range(n):
             E[i, j] = E[i, j] * keep
         Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
     E[ib, ir] = E[ib, ir] - (w if lagged is None else w - lagged) * dt
     if "yaw" in d.states:
-        E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w * dt
+        E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w_r * dt
     return E, Gu
 
 
@@ -167,9 +185,14 @@ def weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
     offset = ks.ay_offset + straight * (g.ay - G * o.sin(roll) - ks.ay_offset) * o.fmin(
         g.dt / nz.kinematic_offset_tau, 1.0)
     keep = 1.0 - w
+    w_r, keep_r = w, keep
+    if nz.kinematic_yaw_release > 0:  # the yaw row's weight: the path's, peak-held, decaying with the release lag
+        w_r = o.fmax(w, ks.w_yaw * (1.0 - o.fmin(g.dt / nz.kinematic_yaw_release, 1.0)))
+        keep_r = 1.0 - w_r
+        lp["w_yaw"] = w_r
     e_b, e_r = np.eye(n)[ib], np.eye(n)[ir]
     q = q * _col(1.0 - e_b - e_r, o) + _col(e_b, o) * (q[ib] * keep + nz.q_beta_kinematic * w) \
-        + _col(e_r, o) * (q[ir] * keep + nz.q_yaw_rate_kinematic * w)
+        + _col(e_r, o) * (q[ir] * keep_r + nz.q_yaw_rate_kinematic * w_r)
     if share is None:
         kin, lagged = _col(e_b, o) * (w * ay / v_m), None
     else:  # a noisy accelerometer: beta' = a_y / v - r from the measurements, both through the same lags
@@ -180,16 +203,20 @@ def weight(d: FilterDesign, a_row, b_row, q, x, uin, g, v_m, dyn, kin_state, o):
 
 def saturation_evidence(d: FilterDesign, ay, departure, o=NUMPY):
     """What the kinematic path's departure reads at a measured lateral acceleration ``ay`` and its departure
-    ``ay - a_model`` from the linear model's: ``|departure|``; with ``kinematic_overpredict``, only what the
-    model asks beyond the measurement, ``|a_model| - |ay|`` where the two have one sign (0 where the
-    measurement exceeds the model: no tyre gives more than its linear force), ``|departure|`` where they
-    disagree in sign."""
+    ``ay - a_model`` from the linear model's: ``|departure|``; with ``kinematic_overpredict`` ``k``, where the
+    two have one sign, what the model asks beyond the measurement, ``|a_model| - |ay|``, in full and what the
+    measurement has beyond the model (no tyre gives more than its linear force) times ``1 - k``;
+    ``|departure|`` where they disagree in sign."""
     dep = o.fabs(departure)
-    if d.noise.kinematic_overpredict <= 0:
+    k = d.noise.kinematic_overpredict
+    if k <= 0:
         return dep
     model = ay - departure
     same = model * ay >= 0.0
-    return same * o.fmax(o.fabs(model) - o.fabs(ay), 0.0) + (1.0 - same) * dep
+    over = o.fmax(o.fabs(model) - o.fabs(ay), 0.0)
+    if k < 1:
+        over = over + (1.0 - k) * o.fmax(o.fabs(ay) - o.fabs(model), 0.0)
+    return same * over + (1.0 - same) * dep
 
 
 def low_pass_alpha(d: FilterDesign, dt):

@@ -193,10 +193,12 @@ class NoiseSettings:
     accelerometer (:func:`toolkit.estimation.kinematic_path.accel_low_pass`); 0 = no low-pass (the readings as
     they come, whatever their noise)."""
     kinematic_overpredict: float = 0.0
-    """1: the kinematic path counts a departure only where the linear model asks more lateral acceleration
-    than the car has (a tyre beyond its linear range gives less force than the model, never more), or the two
-    disagree in sign; a measured lateral acceleration above the model's (a stiffness set too low, a sideslip
-    error the path left) does not engage it. 0 (default): any departure."""
+    """[0, 1] How little the kinematic path counts a departure where the car has more lateral acceleration than
+    the linear model asks (a tyre beyond its linear range gives less force than the model, never more: that
+    departure is a stiffness set too low or a sideslip error, often one the path itself left after a slide,
+    which would then hold it on): such a departure counts ``1 - kinematic_overpredict`` of itself; where the
+    model asks more than the car has, or the two disagree in sign, it counts in full. 0 (default): any
+    departure in full; 1: over-prediction only."""
     kinematic_noise_sigmas: float = 0.0
     """Where the path reads the accelerometer through its low-pass (a vibrating body), both engagement
     thresholds (``kinematic_ay_on``, ``kinematic_ay_full``) are raised by this many standard deviations of
@@ -231,6 +233,13 @@ class NoiseSettings:
     q_yaw_rate_kinematic: float = 1.0
     """[rad^2/s^3] white noise on the yaw acceleration where the kinematic path has taken over (the yaw
     rate a random walk the gyro pins)."""
+    kinematic_yaw_release: float = 0.0
+    """[s] The yaw-rate row returns to the model through a first-order lag of this time constant after the
+    kinematic path lets go (its weight there is the path's, peak-held and decaying; 0 = with the path at once).
+    While the path was on, the sideslip's variance grew with ``q_beta_kinematic``; the model's yaw row, back at
+    once, makes the gyro a sensor of that sideslip through ``a21`` (a 1 deg sideslip error moves the yaw
+    acceleration by 0.4 rad/s^2 on the Stanford GTI), and a gyro that steps (an INS read at 200 Hz and held at
+    1 kHz) then throws the sideslip by several degrees within milliseconds."""
     adapt_rate: float = 0.0
     """Innovation-adaptive process noise (``dakf``, ``amrkf``; 0 = off): the lateral states' process
     noise is multiplied by a scale ``s`` that every accepted course fix moves by
@@ -292,6 +301,16 @@ class NoiseSettings:
     model's error and carries it into every later heading. On the Stanford GTI's limit drives the bias,
     learnt in every turn, swung by up to 0.8 deg/s from its true 0.17; held in turns, it is learnt on the
     straights and the correlations the turns built."""
+    bias_settle_hold: float = 0.0
+    """[s] Until this long after the first usable fix (before it too), the gyro update leaves the bias estimate
+    as it is wherever the car turns (``v |r|`` above ``bias_settle_ay``): a consider state as with
+    ``bias_learn_rate``. 0 = off. A filter started in a turn (a cold start at speed, an ECU reset) begins with
+    its sideslip at 0 and its bias spread wide: the yaw model's prediction is then off by ``a21`` times the
+    sideslip error, and the gyro update hands that to the bias (1-3 deg/s within the first second on the
+    Stanford GTI's 12 m/s^2 turns, which later gated every fix). Where the car drives straight, the bias learns
+    from the gyro from the first sample."""
+    bias_settle_ay: float = 2.0
+    """[m/s^2] see ``bias_settle_hold``."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -313,8 +332,9 @@ class NoiseSettings:
                              f"{self.residual_corr_fixes!r}")
         if not self.residual_corr_min < 1:
             raise ModelError(f"noise setting 'residual_corr_min' must be < 1, got {self.residual_corr_min!r}")
-        if self.kinematic_overpredict not in (0.0, 1.0):
-            raise ModelError(f"noise setting 'kinematic_overpredict' must be 0 or 1, got {self.kinematic_overpredict!r}")
+        if not self.kinematic_overpredict <= 1.0:
+            raise ModelError(f"noise setting 'kinematic_overpredict' must be between 0 and 1, got "
+                             f"{self.kinematic_overpredict!r}")
         if self.accel_noise_full <= self.accel_noise_on:
             raise ModelError(f"noise setting 'accel_noise_full' ({self.accel_noise_full!r}) must be above "
                              f"'accel_noise_on' ({self.accel_noise_on!r})")
@@ -392,7 +412,8 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
     comes), its thresholds raised by three standard deviations of what noise passes the low-pass
     (``kinematic_noise_sigmas``), with under half the ECU's sideslip noise where it has taken over
     (``q_beta_kinematic``), the yaw row loosens with the lateral acceleration and the road-wheel angle
-    (``yaw_model_ay``, ``yaw_model_steer``), and ``beta_std`` carries the linear model's own error
+    (``yaw_model_ay``, ``yaw_model_steer``), the bias is held in turns until a second after the first fix
+    (``bias_settle_hold``), and ``beta_std`` carries the linear model's own error
     (``beta_model_std``, ``beta_model_rel``). These are what measured drives of a real car asked for
     (``studies/real_drives.py``); together they leave every cell of ``estimation_mb`` within 0.02 deg RMS."""
     s = sensors if sensors is not None else SensorConfig()
@@ -405,7 +426,7 @@ def estimation_noise(sensors: SensorConfig | None = None) -> NoiseSettings:
                          adapt_rate=0.3, kinematic_ay_on=0.4, kinematic_ay_full=0.8, kinematic_dev_tau=0.1,
                          kinematic_ay_cutoff=5.0, disturbance_chi2_on=2.0, disturbance_chi2_full=6.0,
                          kinematic_noise_sigmas=3.0, q_beta_kinematic=0.0075, yaw_model_ay=7.0, yaw_model_steer=0.1,
-                         beta_model_std=np.deg2rad(0.5), beta_model_rel=0.1)
+                         beta_model_std=np.deg2rad(0.5), beta_model_rel=0.1, bias_settle_hold=1.0)
 
 
 def design_filter(method: str, params: VehicleParams, noise: NoiseSettings | None = None, *,
