@@ -235,13 +235,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--plot", help="PNG figure to write")
     sp.set_defaults(func=cmd_simulate)
     from .estimation import METHODS
+    from .estimation.spec import method_help
     sp = sub.add_parser("estimate", help="estimate sideslip, yaw rate and yaw from a drive log")
     sp.add_argument("log", help="drive log: CSV (the schema of docs/formats.md), .csv.gz, or .mf4/.mat/CSV with "
                                 "--map")
     sp.add_argument("--vehicle", help="bundled name or TOML path (its nominal parameters are used)")
     sp.add_argument("--design", help="an 'evstab design' folder: run its estimator exactly as exported "
                                      "(instead of --vehicle/--method)")
-    sp.add_argument("--method", choices=METHODS, default="dakf", help="estimator")
+    sp.add_argument("--method", choices=METHODS, default="dakf", help=method_help())
     sp.add_argument("--gps-latency", type=_nonneg, default=0.0, help="age of each GPS fix when logged [s]")
     sp.add_argument("--map", "--channel-map", dest="channel_map",
                     help="for a log with its own channels (.mf4, .mat, CSV): TOML naming the channel of each schema "

@@ -119,8 +119,12 @@ def test_estimation_on_the_multibody_car_meets_the_targets(tmp_path):
     # which keeps what the filter learnt with the disturbances present; 0.005 deg RMS of slack (the full
     # study's 64 log-and-nominal pairs: at most 0.0036 above kf-bias, on the Escort's double lane change;
     # these drives 0.0016; without the conditioning 0.029)
+    # the rule holds evstab's own methods, not the references as published (spec.AS_PUBLISHED)
+    from evstab.toolkit.estimation.spec import AS_PUBLISHED
+    own = {m for (_, _, m) in by} - set(AS_PUBLISHED) - {"kf-bias"}
+    assert {"dakf", "amrkf"} <= own, own
     for (drive, nominal, method), v in by.items():
-        if method in ("dakf", "amrkf"):
+        if method in own:
             assert v <= by[(drive, nominal, "kf-bias")] + 0.005, (drive, nominal, method)
 
 

@@ -458,3 +458,28 @@ def test_an_unknown_bias_learns_in_a_turn(share, factor):
     P[ib, ib] *= share ** 2
     f = _bias_learning(d, np.zeros(d.n), P, 1.0, NUMPY)
     assert f[ib] == pytest.approx(factor, abs=1e-12) and f[d.index("beta")] == 1.0
+
+
+def test_the_references_as_published_are_labelled():
+    """``AS_PUBLISHED``: every reference is a method ``evstab estimate`` runs, by a paper of ``docs/sources.md``
+    (its number there, bold, with its authors); the method's entry in ``spec``'s method list says "as
+    published", an own method's does not; and ``--method``'s help names each reference with its paper."""
+    import argparse
+    from pathlib import Path
+
+    from evstab.toolkit.cli import build_parser
+    from evstab.toolkit.estimation import spec
+    from evstab.toolkit.estimation.spec import AS_PUBLISHED
+    sources = (Path(__file__).resolve().parents[2] / "docs" / "sources.md").read_text()
+    assert set(AS_PUBLISHED) < set(METHODS) and "dakf" not in AS_PUBLISHED and "kf-bias" not in AS_PUBLISHED
+    for method, paper in AS_PUBLISHED.items():
+        assert f"- **{paper}**: " in sources, paper
+    doc = spec.__doc__
+    for method in METHODS:
+        assert (f"``{method}`` (as published)\n" in doc) is (method in AS_PUBLISHED), method
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    help_text = next(a.help for a in sub.choices["estimate"]._actions if "--method" in a.option_strings)
+    for method, paper in AS_PUBLISHED.items():
+        tail = help_text.split("references:")[1]
+        group = next(g for g in tail.split(";") if method in g.replace(",", " ").split())
+        assert f"({paper})" in group, (method, group)
