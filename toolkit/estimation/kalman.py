@@ -444,8 +444,12 @@ def _bias_learning(d: FilterDesign, x, P, gyro, o):
     f = o.fmin(o.fmax(2.0 - o.fabs(gyro - x[ib]) / d.noise.bias_learn_rate, 0.0), 1.0)
     spread = float(np.sqrt(d.initial_covariance()[ib, ib]))
     unknown = o.fmin(o.fmax((o.sqrt(o.fmax(P[ib, ib], 0.0)) / spread - BIAS_UNKNOWN) / (1.0 - BIAS_UNKNOWN), 0.0), 1.0)
-    f = o.fmax(f, unknown)
-    e = np.eye(d.n)[ib]
+    return _bias_gain(d, o.fmax(f, unknown), o)
+
+
+def _bias_gain(d: FilterDesign, f, o):
+    """The gain scale that multiplies the gyro bias's gain by ``f`` and every other state's by 1."""
+    e = np.eye(d.n)[d.index("gyro_bias")]
     return _col(1.0 - e, o) + _col(e, o) * f
 
 
@@ -457,10 +461,8 @@ def _settling_bias(d: FilterDesign, x, v_m, init, learn, o):
     nz = d.noise
     if not (d.bias and nz.bias_settle_hold > 0):
         return learn
-    ib = d.index("gyro_bias")
     hold = (init < 1.0 + nz.bias_settle_hold) * (v_m * o.fabs(x[d.index("yaw_rate")]) > nz.bias_settle_ay)
-    e = np.eye(d.n)[ib]
-    held = _col(1.0 - e, o) + _col(e, o) * (1.0 - hold)
+    held = _bias_gain(d, 1.0 - hold, o)
     return held if learn is None else learn * held
 
 

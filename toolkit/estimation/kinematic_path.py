@@ -105,10 +105,10 @@ def blend(d: FilterDesign, A, B, q, x, uin, g, v_m, dyn, kin_state, o):
         A, B = A.copy(), B.copy()
     # both lateral rows leave the tyre model: beta' from the kinematics, r' a random walk that the gyro
     # pins (left on the model, the gyro's innovations would reach the sideslip through a21)
-    for i, keep in ((ib, keep), (ir, keep_r)):
+    for i, k in ((ib, keep), (ir, keep_r)):
         for j in range(n):
-            A[i, j] = A[i, j] * keep
-        B[i, 0], B[i, 1] = B[i, 0] * keep, B[i, 1] * keep
+            A[i, j] = A[i, j] * k
+        B[i, 0], B[i, 1] = B[i, 0] * k, B[i, 1] * k
     # beta' takes -r from the yaw-rate state, except the share the low-passed measured rate carries
     A[ib, ir] = A[ib, ir] - (w if lagged is None else w - lagged)
     return A, B, q, kin, state
@@ -136,10 +136,10 @@ def transition(d: FilterDesign, E, Gu, w, dt, o, lagged=None, w_r=None):
     if o is not CASADI:
         E, Gu = E.copy(), Gu.copy()
     rows = [(ib, keep), (ir, keep_r)] + ([(d.index("yaw"), keep_r)] if "yaw" in d.states else [])
-    for i, keep in rows:
+    for i, k in rows:
         for j in range(n):
-            E[i, j] = E[i, j] * keep
-        Gu[i, 0], Gu[i, 1] = Gu[i, 0] * keep, Gu[i, 1] * keep
+            E[i, j] = E[i, j] * k
+        Gu[i, 0], Gu[i, 1] = Gu[i, 0] * k, Gu[i, 1] * k
     E[ib, ir] = E[ib, ir] - (w if lagged is None else w - lagged) * dt
     if "yaw" in d.states:
         E[d.index("yaw"), ir] = E[d.index("yaw"), ir] + w_r * dt
