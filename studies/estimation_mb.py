@@ -39,16 +39,19 @@ from evstab.plants.maneuvers import dlc_000, ramp_steer, sine_lane_change, sine_
     steer_for_lateral_acceleration
 from evstab.plants.sensors import SensorConfig
 from evstab.studies._common import cli, out_dir, pivot, write_markdown, write_table
+from evstab.toolkit.ecu.step import TELEMETRY_CHI2
 from evstab.toolkit.estimation import design_filter, run_estimator
 from evstab.toolkit.verdicts.estimators import _inject_bad_fixes
 from evstab.toolkit.loop.simulator import simulate
 
 CARS = (1, 2, 3)
-METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "dakf (ECU, no kinematic path)", "kf", "mbkf",
-           "lob", "kkf", "two-stage", "dual-antenna", "dakf-paper")
+METHODS = ("dakf", "amrkf", "kf-bias", "double-layer", "dakf (ECU)", "dakf (ECU, beta_telemetry)",
+           "dakf (ECU, no kinematic path)", "kf", "mbkf", "lob", "kkf", "two-stage", "dual-antenna", "dakf-paper")
 """Every estimator (the logs have every column each needs); ``dakf (ECU)`` is the ECU's filter
-(``design_filter(..., control=True)``: the stability loop's noise, the kinematic path), ``dakf (ECU, no
-kinematic path)`` the same without the path (``evstab design --no-kinematic-path``)."""
+(``design_filter(..., control=True)``: the stability loop's noise, the kinematic path) and its sideslip output
+``beta``, which the law reads; ``dakf (ECU, beta_telemetry)`` the same filter's second output, for logs and
+telemetry (conditioned on zero disturbances at the ECU's default ends, ``toolkit.ecu.step.TELEMETRY_CHI2``);
+``dakf (ECU, no kinematic path)`` the ECU's filter without the path (``evstab design --no-kinematic-path``)."""
 README_METHODS = ("dakf", "dakf (ECU)", "kf-bias")
 """The README's rows: the default filter on logs, the ECU's, and the plain bias-aware KF."""
 SEEDS = (0, 10, 20)
@@ -125,8 +128,11 @@ def _errors(log, p, n: int, drive: str, seed: int, methods) -> list[dict]:
     for label, nominal in (("exact", p), ("off", wrong(p))):
         for m in methods:
             ecu, no_kin = " (ECU" in m, m.endswith("no kinematic path)")
-            est = run_estimator(design_filter(m.split(" (")[0], nominal, nominal=False, control=ecu,
-                                              kinematic=False if no_kin else None), log)
+            d = design_filter(m.split(" (")[0], nominal, nominal=False, control=ecu, kinematic=False if no_kin else None)
+            if m.endswith("beta_telemetry)"):  # the filter's output conditioned as the ECU's beta_telemetry is
+                d = dataclasses.replace(d, noise=dataclasses.replace(
+                    d.noise, disturbance_chi2_on=TELEMETRY_CHI2[0], disturbance_chi2_full=TELEMETRY_CHI2[1]))
+            est = run_estimator(d, log)
             err = np.degrees(est["beta"] - log["beta_true"])
             rows.append({"car": f"commonroad-mb:{n}", "drive": drive, "seed": seed, "nominal": label, "method": m,
                          "rms_deg": float(np.sqrt(np.mean(err[sel] ** 2))),

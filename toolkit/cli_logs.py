@@ -187,7 +187,7 @@ def _estimate_designed(args) -> int:
                           "leave them out")
     d, log, U, Y, backend = _replay(args)
     cols = {"t": log["t"]}
-    cols.update({name: OUTPUTS.columns(Y)[name] for name in ESTIMATE_COLUMNS})
+    cols.update({name: OUTPUTS.columns(Y)[name] for name in ESTIMATE_COLUMNS + ("beta_telemetry",)})
     write_log_table(args.out, cols)
     print(f"{d.filter.method} (designed, {args.design}) on {args.log}: {len(U)} samples, "
           f"{int(INPUTS.columns(U)['gps_valid'].sum())} GPS fixes, {int(cols['gps_used'].sum())} used ({backend} backend) -> {args.out}")

@@ -180,6 +180,7 @@ def test_exported_c_equals_replay_and_estimate(firmware, design_dir, ecu, which,
     assert len(Y) == len(rep)
     np.testing.assert_allclose(col["beta"], est["beta"], rtol=0, atol=tol)
     np.testing.assert_allclose(col["beta"], rep["beta"], rtol=0, atol=tol)
+    np.testing.assert_allclose(col["beta_telemetry"], est["beta_telemetry"], rtol=0, atol=tol)
     np.testing.assert_allclose(col["yaw_rate"], rep["yaw_rate"], rtol=0, atol=tol)
     _commands_close(col["steer_cmd"], rep["steer_cmd"], tol, shift)
     _commands_close(col["yaw_moment_cmd"], rep["yaw_moment_cmd"], nz_tol, shift)
@@ -232,6 +233,40 @@ def test_replay_compiled_equals_numpy_reference(ecu, fault_log):
     assert np.all(np.abs(Y_c - Y_np).max(axis=0) <= 1e-12 * scale)
 
 
+def test_the_telemetry_sideslip_is_the_conditioned_estimate_and_the_law_never_reads_it(ecu, closed_loop):
+    """``beta_telemetry`` (the second sideslip output, for logs and telemetry) against the filter's own
+    conditioned output (``kalman.step`` with ``disturbance_chi2_on/full``, the output of ``evstab estimate``'s
+    log filters, whose conditioning test_estimation checks against numpy's Gaussian conditioning) on the same
+    ECU over the closed loop's sensor log; and the law's commands and every other output bit for bit the same
+    whatever its calibration, so the control law is unchanged by construction."""
+    res, _ = closed_loop
+    cols = {k: np.asarray(v, float) for k, v in res.log_columns().items()}
+    U = ecu_inputs(cols, MU, wheel_radius=ecu.wheel_radius)
+    Y = ecu_program(ecu).run(U)
+    other = replace(ecu, telemetry_chi2_on=20.0, telemetry_chi2_full=40.0)  # conditioned nearly throughout
+    Y2 = ecu_program(other).run(U)
+    k = OUTPUTS.index("beta_telemetry")
+    rest = [i for i in range(OUTPUTS.size) if i != k]
+    np.testing.assert_array_equal(Y2[:, rest], Y[:, rest])  # commands, beta, references: bit for bit
+    col, col2 = OUTPUTS.columns(Y), OUTPUTS.columns(Y2)
+    assert (ecu.telemetry_chi2_on, ecu.telemetry_chi2_full) == (0.5, 2.0)  # the defaults (TELEMETRY_CHI2)
+    for d, c in ((ecu, col), (other, col2)):
+        # the filter's own output conditioned at the telemetry's ends: its recursion is the same (the output
+        # does not feed back and the replay's inputs are the log's), so its beta is beta_telemetry: the same
+        # operations on the state the step packed; 0 difference measured, 1e-15 rad leaves a compiler's
+        # contraction room
+        noise = replace(d.filter.noise, disturbance_chi2_on=d.telemetry_chi2_on,
+                        disturbance_chi2_full=d.telemetry_chi2_full)
+        cond = replace(d, filter=replace(d.filter, noise=noise))
+        Y3 = OUTPUTS.columns(ecu_program(cond).run(U))
+        np.testing.assert_allclose(Y3["beta_telemetry"], c["beta_telemetry"], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(Y3["beta"], c["beta_telemetry"], rtol=0, atol=1e-15)
+    # the output is not the law's estimate: the disturbances carried course noise the conditioning drops
+    # (0.0022 rad at most with the defaults, 0.0026 conditioned nearly throughout, measured)
+    gap = np.abs(col["beta_telemetry"] - col["beta"])
+    assert gap.max() > 1e-4 and np.abs(col2["beta_telemetry"] - col["beta"]).max() > gap.max()
+
+
 def test_gain_set_round_trips_exactly(design_dir, ecu):
     doc = gain_set(design_dir, "cmd")
     text = gains_mod.dumps(doc)
@@ -254,6 +289,19 @@ def test_a_gain_set_of_format_1_still_loads(design_dir, ecu):
     doc["format"] = "evstab-gains/1"
     doc["controller"]["k_beta"] = 1.0  # a stale copy: the calibration list's 6.5 wins
     doc["torque_split"]["torque_max_nm"] = 1.0
+    assert gains_mod.load_gains(doc)[0] == ecu
+
+
+def test_the_telemetry_calibration_is_checked_and_may_be_absent(design_dir, ecu):
+    """beta_telemetry's smoothstep needs its upper end above its lower: refused at load, naming both; a gain set
+    of an ECU without the output (no telemetry entries) loads with the defaults."""
+    doc = gain_set(design_dir)
+    cal = {c["name"]: c for c in doc["calibration"]}
+    cal["telemetry_chi2_full"]["value"] = 0.5  # equal to telemetry_chi2_on: inside both A2L ranges, not a step
+    with pytest.raises(gains_mod.GainSetError, match="telemetry_chi2_full.*telemetry_chi2_on"):
+        gains_mod.load_gains(doc)
+    doc = gain_set(design_dir)
+    doc["calibration"] = [c for c in doc["calibration"] if not c["name"].startswith("telemetry_")]
     assert gains_mod.load_gains(doc)[0] == ecu
 
 

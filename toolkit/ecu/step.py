@@ -89,8 +89,14 @@ OUTPUTS = Layout("ECU outputs", [
     Signal("bad_samples", "-", "input samples the guard has replaced since start (saturates at 1e7)"),
     Signal("steer_correction", "rad", "the steer a superposition gear adds to the driver's road-wheel angle: "
            "steer_cmd less the driver's angle as the ECU read it (0 while the law is passive)"),
+    Signal("beta_telemetry", "rad", "sideslip estimate for logs and telemetry: beta conditioned on zero "
+           "disturbances while they are insignificant (telemetry_chi2_on/full); the law reads beta"),
 ])
 FIRMWARE_METHODS = LOOP_METHODS
+TELEMETRY_CHI2 = (0.5, 2.0)
+"""The default ends of ``beta_telemetry``'s smoothstep in the disturbances' chi-square (:class:`EcuDesign`): on
+the multi-body cars' drives of ``estimation_mb`` the ECU filter's estimate so conditioned is above ``kf-bias`` by
+more than 0.005 deg RMS on 4 of 96 log-and-nominal pairs, its own on 41 (docs/estimators.md)."""
 
 
 @dataclass(frozen=True)
@@ -196,6 +202,11 @@ class EcuDesign:
     """Wheel radius [m]."""
     guard: GuardSettings = GuardSettings()
     """The input guard's timing (:mod:`toolkit.ecu.guard`)."""
+    telemetry_chi2_on: float = TELEMETRY_CHI2[0]
+    """``beta_telemetry`` is the estimate conditioned on zero disturbances while their normalised square
+    ``d^T P_dd^-1 d`` is below this (:func:`kalman.telemetry_sideslip`) ..."""
+    telemetry_chi2_full: float = TELEMETRY_CHI2[1]
+    """... and the filter's own estimate from this, a smoothstep between."""
 
     def __post_init__(self):
         if self.filter.method not in FIRMWARE_METHODS:
@@ -207,6 +218,9 @@ class EcuDesign:
         tr = build_transition(self.filter, self.filter.schedule, self.filter.dt_nominal)
         if self.filter.transition != tr:
             object.__setattr__(self, "filter", dataclasses.replace(self.filter, transition=tr))
+        if not 0.0 <= self.telemetry_chi2_on < self.telemetry_chi2_full:
+            raise ModelError(f"ECU setting 'telemetry_chi2_full' ({self.telemetry_chi2_full!r}) must be above "
+                             f"'telemetry_chi2_on' ({self.telemetry_chi2_on!r}), which must be at least 0")
         if not np.isfinite(self.controller.nz_max):
             raise ModelError("the controller's yaw_moment_max is not finite: give the vehicle max_motor_torque, "
                              "track_rear and wheel_radius (or set yaw_moment_max)")
@@ -299,6 +313,12 @@ class EcuDesign:
             out.append(Calibration("gate", nz.gate, "-", 1.0, 1e4,
                                    "chi-square gate on the course innovation (normalised squared innovation)",
                                    "noise"))
+        out.append(Calibration("telemetry_chi2_on", self.telemetry_chi2_on, "-", 0.0, 100.0,
+                               "disturbances' chi-square below which beta_telemetry is conditioned on zero "
+                               "disturbances", "ecu"))
+        out.append(Calibration("telemetry_chi2_full", self.telemetry_chi2_full, "-", 0.01, 1000.0,
+                               "... and from which it is the filter's own estimate (above telemetry_chi2_on)",
+                               "ecu"))
         return tuple(out)
 
     def bind(self, values) -> "EcuDesign":
@@ -359,7 +379,8 @@ def filter_part(lay: Layout) -> slice:
 
 def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True, moving: bool = False):
     """The filter part of the step: ``(z_est, u) -> (z_est_next, estimates)``, estimates a dict of
-    ``beta, yaw_rate, yaw, d1, d2, gyro_bias, beta_std, gps_used`` (0 for states the filter lacks)."""
+    ``beta, yaw_rate, yaw, d1, d2, gyro_bias, beta_std, gps_used`` (0 for states the filter lacks) and
+    ``beta_telemetry`` (:func:`kalman.telemetry_sideslip`)."""
     g = INPUTS.as_dict(u)
     valid = g["gps_valid"]
     u_est = kalman.INPUTS.pack(o=o, dt=g["dt"], speed=g["speed"], steer=g["steer"], yaw_moment=g["yaw_moment_applied"],
@@ -367,6 +388,8 @@ def ecu_estimate(d: EcuDesign, z_est, u, o=NUMPY, with_course: bool = True, movi
                                sats=g["gps_sats"], ay=g["ay"])
     z_est_n, y = kalman.step(d.filter, z_est, u_est, o, with_course=with_course, moving=moving)
     est = kalman.OUTPUTS.as_dict(y)
+    est["beta_telemetry"] = kalman.telemetry_sideslip(d.filter, z_est_n, d.telemetry_chi2_on,
+                                                      d.telemetry_chi2_full, o)
     zero = 0.0 * g["speed"]
     for name, present in (("d1", "d1" in d.filter.states), ("d2", "d2" in d.filter.states),
                           ("gyro_bias", d.filter.bias)):
@@ -457,7 +480,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                                                          est["yaw_rate"], beta_slide, beta_rate, est["beta_std"], o)
     t_rl, t_rr = rear_torques(d, nz_cmd, o)
     out = OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_std",
-                                                   "gps_used")},
+                                                   "gps_used", "beta_telemetry")},
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
                        drive_share=drive_share, mu_est=mu_est,

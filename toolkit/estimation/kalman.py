@@ -471,7 +471,7 @@ def conditions_sideslip(d: FilterDesign) -> bool:
     return bool(d.noise.disturbance_chi2_full > 0 and "d1" in d.states and "d2" in d.states)
 
 
-def significant_sideslip(d: FilterDesign, x, P, o):
+def significant_sideslip(d: FilterDesign, x, P, o, chi2_on=None, chi2_full=None):
     """The sideslip output of a filter with disturbance states: the estimate conditioned on zero
     disturbances where the disturbance estimates are insignificant, the estimate itself where they are.
 
@@ -483,18 +483,36 @@ def significant_sideslip(d: FilterDesign, x, P, o):
     their spread, ``chi2 = d^T P_dd^-1 d`` grows, and the output returns to ``beta`` by a smoothstep
     of ``chi2`` between ``disturbance_chi2_on`` and ``disturbance_chi2_full``. The filter's recursion
     and its covariance are untouched (``beta_std`` stays the filter's, which bounds the conditioned
-    estimate's spread too)."""
+    estimate's spread too).
+
+    ``chi2_on``, ``chi2_full``: the smoothstep's ends where they are not the design's (the ECU's telemetry
+    output, :func:`telemetry_sideslip`: numbers or calibration symbols; a span below 1e-9 is taken as 1e-9,
+    a step, so that no calibration makes the output non-finite)."""
     nz = d.noise
+    if chi2_on is None:
+        chi2_on, span = nz.disturbance_chi2_on, nz.disturbance_chi2_full - nz.disturbance_chi2_on
+    else:
+        span = o.fmax(chi2_full - chi2_on, 1e-9)
     ib, i1, i2 = d.index("beta"), d.index("d1"), d.index("d2")
     a, b, c = P[i1, i1], P[i1, i2], P[i2, i2]
-    det = o.fmax(a * c - b * b, 1e-300)  # P_dd is positive definite; the floor keeps a degenerate one finite
+    det = o.fmax(a * c - b * b, 1e-30)  # P_dd is positive definite; the floor (float32 has it) keeps a degenerate one finite
     d1, d2 = x[i1], x[i2]
     g1, g2 = (c * d1 - b * d2) / det, (a * d2 - b * d1) / det  # P_dd^-1 d
     chi2 = d1 * g1 + d2 * g2
-    s = o.fmin(o.fmax((chi2 - nz.disturbance_chi2_on) / (nz.disturbance_chi2_full - nz.disturbance_chi2_on), 0.0),
-               1.0)
+    s = o.fmin(o.fmax((chi2 - chi2_on) / span, 0.0), 1.0)
     w = s * s * (3.0 - 2.0 * s)
     return x[ib] - (1.0 - w) * (P[ib, i1] * g1 + P[ib, i2] * g2)
+
+
+def telemetry_sideslip(d: FilterDesign, z, chi2_on, chi2_full, o):
+    """The sideslip of the filter state ``z`` (a step's ``z_next``) conditioned on zero disturbances while they
+    are insignificant (:func:`significant_sideslip` with the smoothstep from ``chi2_on`` to ``chi2_full``);
+    the estimate itself for a design without both disturbance states. The ECU's second sideslip output, for
+    logs and telemetry: the law reads the filter's own estimate."""
+    zs = layout(d).unpack(z)
+    if not ("d1" in d.states and "d2" in d.states):
+        return zs.x[d.index("beta")]
+    return significant_sideslip(d, zs.x, o.reshape(zs.P, d.n, d.n), o, chi2_on, chi2_full)
 
 
 def _residual_correlation(d: FilterDesign, rcor, nu, accept, o):

@@ -177,9 +177,14 @@ def load_gains(path_or_doc) -> tuple[EcuDesign, dict, dict]:
                                   if k not in ("model", "latency_compensated_s", "latency_samples")}
 
 
+_OPTIONAL = ("telemetry_chi2_on", "telemetry_chi2_full")
+
+
 def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
     """The calibration list is authoritative: a calibrator may have edited it."""
     cal = d.calibration()
+    # beta_telemetry's ends may be absent (a gain set of an ECU without that output): the design's defaults
+    values = {**{c.name: c.value for c in cal if c.name in _OPTIONAL}, **values}
     missing = [c.name for c in cal if c.name not in values]
     if missing:
         raise GainSetError(f"no value for {', '.join(missing)}")
@@ -191,4 +196,5 @@ def _apply_calibration(d: EcuDesign, values: dict) -> EcuDesign:
     noise_values: dict[str, Any] = {c.name: float(values[c.name]) for c in cal if c.owner == "noise"}
     noise = dataclasses.replace(d.filter.noise, **noise_values)
     filt: FilterDesign = dataclasses.replace(d.filter, noise=noise)
-    return dataclasses.replace(d, filter=filt, controller=ctl, torque_max=float(values["torque_max"]))
+    ecu: dict[str, Any] = {c.name: float(values[c.name]) for c in cal if c.owner == "ecu"}
+    return dataclasses.replace(d, filter=filt, controller=ctl, **ecu)

@@ -154,7 +154,7 @@ class LoopEcu:
         else:
             z_est_n = None
             est = {"beta": truth["beta"], "yaw_rate": truth["yaw_rate"], "yaw": truth["yaw"], "d1": zero,
-                   "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero}
+                   "d2": zero, "gyro_bias": zero, "beta_std": zero, "gps_used": zero, "beta_telemetry": truth["beta"]}
         z_ctl = z_c
         if self.kind == "yaw-pi":
             sig = ctl_mod.SIGNALS.pack(o=o, speed=g["speed"], steer_driver=g["steer_cmd_driver"], beta=est["beta"],
@@ -165,7 +165,7 @@ class LoopEcu:
             c = ctl_mod.OUTPUTS.unpack(c_y)
             t_rl, t_rr = rear_torques(d, c.yaw_moment, o)
             y = ECU_OUTPUTS.pack(o=o, **{k: est[k] for k in ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias",
-                                                             "beta_std", "gps_used")},
+                                                             "beta_std", "gps_used", "beta_telemetry")},
                                  steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
                                  beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, drive_share=1.0 + zero,
                                  mu_est=g["mu"],
