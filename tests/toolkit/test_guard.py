@@ -328,3 +328,70 @@ def test_the_rear_wheels_stand_in_for_a_speed_in_fault():
     zs, cs = _run(seq)
     assert cs[100]["speed"] == seq[99]["speed"]  # the last good value
     assert zs[149 + 200]["authority"] == 0.0
+
+
+def _fixes(n, yaw_rate, course, every=200, dt=DT):
+    """``n`` periods of ``dt`` at 16.7 m/s with the gyro reading ``yaw_rate(k)`` and a fix every ``every`` periods
+    (5 Hz at 1 ms) whose course is ``course(k)``."""
+    seq = [_inputs() for _ in range(n)]
+    for k, u in enumerate(seq):
+        u["dt"] = dt
+        u["yaw_rate"], u["ay"] = yaw_rate(k), V * yaw_rate(k)  # a car that does not slide: the gyro agrees
+        if k % every == 0:
+            u.update(gps_valid=1.0, gps_course=course(k))
+    return seq
+
+
+@pytest.mark.parametrize("share, stuck", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
+def test_a_repeated_course_after_a_turn_is_stuck(share, stuck):
+    """A second fix with the first one's course to the bit, 200 periods later, after a steady yaw rate ``r``: the
+    heading change the guard holds at it is the leaky sum over periods 1-199 (period 0 is the fix, which resets
+    it), ``r dt sum_{j<199} L^j = r tau (1 - L^199)``, ``L = 1 - dt / tau``. At ``share`` of course_stuck_turn
+    (0.035 rad: 2 deg) the fix is used; just beyond, dropped and counted."""
+    leak = 1.0 - DT / S.course_stuck_tau
+    r = share * S.course_stuck_turn / (S.course_stuck_tau * (1.0 - leak ** 199))
+    zs, cs = _run(_fixes(201, lambda k: r, lambda k: 0.3))
+    assert cs[0]["gps_valid"] == 1.0
+    assert cs[200]["gps_valid"] == (0.0 if stuck else 1.0)
+    assert zs[200]["bad_samples"] == (1.0 if stuck else 0.0)
+
+
+def test_a_stuck_course_in_a_turn_is_named_and_recovers():
+    """The course stops at its value of period 600 while a 0.3 rad/s turn goes on to period 2600: at the next fix
+    the gyro has turned by 0.3 tau (1 - L^199) = 0.054 rad since (above 0.035), so from it each repeated fix is
+    dropped, the third dropped one (period 1200) sets the GPS bit (32), and once the course moves again the
+    fifth good fix (period 3400) clears it; the law keeps its authority (the filter bridges a GPS outage)."""
+    r, held = 0.3, 0.3 * DT * 600
+    seq = _fixes(5000, lambda k: r if k < 2600 else 0.0, lambda k: r * DT * min(k, 600))
+    for k in range(2600, 5000, 200):
+        seq[k]["gps_course"] = r * DT * 2600 + 1e-3 * (k - 2600) / 200  # moving on, where the heading is
+    zs, cs = _run(seq)
+    used = {k: cs[k]["gps_valid"] for k in range(0, 5000, 200)}
+    assert seq[800]["gps_course"] == held and [used[k] for k in range(0, 800, 200)] == [1.0] * 4
+    assert [used[k] for k in range(800, 2600, 200)] == [0.0] * 9
+    assert all(used[k] == 1.0 for k in range(2600, 5000, 200))
+    bit = 2.0 ** gm.FAULT_BITS["gps"]
+    assert zs[1199]["fault_word"] == 0.0 and zs[1200]["fault_word"] == bit
+    assert zs[3399]["fault_word"] == bit and zs[3400]["fault_word"] == 0.0
+    assert zs[-1]["bad_samples"] == 9.0 and all(z["authority"] == 1.0 for z in zs)
+
+
+def test_a_quantised_course_in_a_steady_turn_is_not_stuck():
+    """A receiver that reports its course in 1 deg steps, at 5 Hz, through a 20 s turn of 0.05 rad/s (2.9 deg/s:
+    a step every 1.7 fixes, so some fixes repeat the last one): the heading has moved by less than one step,
+    0.0175 rad, when the course changes, inside the 0.035 rad bound. Every fix is used."""
+    q, dt = np.radians(1.0), 0.01  # a 100 Hz ECU (the guard integrates over the dt it is given)
+    zs, cs = _run(_fixes(2000, lambda k: 0.05, lambda k: q * np.round(0.05 * dt * k / q), every=20, dt=dt))
+    fixes = [cs[k]["gps_valid"] for k in range(0, 2000, 20)]
+    courses = [q * np.round(0.05 * dt * k / q) for k in range(0, 2000, 20)]
+    assert sum(a == b for a, b in zip(courses[1:], courses[:-1])) > 30  # repeats the guard must let through
+    assert fixes == [1.0] * 100 and zs[-1]["bad_samples"] == 0.0
+
+
+def test_a_gyro_bias_on_a_long_straight_does_not_make_a_steady_course_stuck():
+    """On a straight road a course quantised to 1 deg repeats for minutes; a 3 mrad/s gyro bias would add up to
+    the bound in 12 s, the leak holds it at ``b tau`` = 0.003 rad. Every fix of 120 s (100 Hz) is used."""
+    zs, cs = _run(_fixes(12000, lambda k: 0.003, lambda k: np.radians(30.0), every=20, dt=0.01))
+    assert all(cs[k]["gps_valid"] == 1.0 for k in range(0, 12000, 20))
+    # the leaky sum's limit b dt / (1 - L) = b tau, reached to 0.99^11999 (0): to rounding
+    assert zs[-1]["course_turn"] == pytest.approx(0.003, rel=1e-9)

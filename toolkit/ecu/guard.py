@@ -20,7 +20,9 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   as the last good value; a speed in fault then takes the law's authority only while the wheels cannot
   stand in for it (it is named in the fault word all the same);
 * a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
-  is dropped (``gps_valid`` 0); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
+  is dropped (``gps_valid`` 0), and so is a stuck one: a course equal to the bit to the last fix whose course
+  changed while the gyro says the car has turned by more than ``course_stuck_turn`` since (a receiver's or a
+  gateway's repeated message: each fix is plausible by itself, and the filter would pull the heading back); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
   wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
 
 A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
@@ -133,10 +135,18 @@ class GuardSettings:
     signal in a steady turn."""
     consistency_speed: float = 5.0
     """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
+    course_stuck_turn: float = 0.035
+    """[rad] A fix's course equal to the bit to that of the last fix whose course changed is stuck when the
+    gyro's heading has moved by more than this since (2 deg: a receiver that quantises its course to 2 deg or
+    finer changes it before the heading has moved that far, whatever the turn) ..."""
+    course_stuck_tau: float = 1.0
+    """[s] ... the heading change integrated with a leak of this time constant, so that a gyro bias cannot build
+    it up on a long straight (a bias ``b`` reaches ``b course_stuck_tau`` at most: 0.003 rad for 3 mrad/s)."""
 
     def __post_init__(self):
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
-                  "consistency_ay", "consistency_rate", "consistency_speed"):
+                  "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
+                  "course_stuck_tau"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
@@ -149,6 +159,9 @@ STATE = Layout("ECU guard state", [
     *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
     Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
+    Signal("last_course", "rad", "course of the last fix whose course changed"),
+    Signal("course_seen", "-", "1 once a fix has been read"),
+    Signal("course_turn", "rad", "the gyro's heading change since that fix (leaking with course_stuck_tau)"),
     Signal("held_yaw_rate", "s", "time the yaw rate has read the same value"),
     Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
     Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
@@ -235,6 +248,17 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     fix = g["gps_valid"] > 0.5
     fix_ok = (o.fabs(g["gps_course"]) < 1e30) * (g["gps_hdop"] > 0.0) * (g["gps_hdop"] < 1e30) * \
         (o.fabs(g["gps_sats"]) < 1e30)
+    # nor is a stuck one: its course equal to the bit to that of the last fix whose course changed, while the
+    # gyro's heading has moved on since (a NaN course compares unequal, and never becomes the last course)
+    same = (g["gps_course"] == st["last_course"]) * st["course_seen"]
+    stuck_fix = same * (o.fabs(st["course_turn"]) > s.course_stuck_turn)
+    read = fix * fix_ok
+    changed = read * (1.0 - same)
+    nxt["last_course"] = o.if_else(changed > 0.5, g["gps_course"], st["last_course"])
+    nxt["course_seen"] = o.fmax(st["course_seen"], read)
+    turn = st["course_turn"] * o.fmax(1.0 - dt_c / s.course_stuck_tau, 0.0) + clean["yaw_rate"] * dt_c
+    nxt["course_turn"] = o.if_else(changed > 0.5, 0.0, o.fmin(o.fmax(turn, -10.0), 10.0))
+    fix_ok = fix_ok * (1.0 - stuck_fix)
     clean["gps_valid"] = fix * fix_ok
     clean["gps_course"] = o.if_else(fix * fix_ok, g["gps_course"], 0.0)
     clean["gps_hdop"] = o.if_else(fix_ok, g["gps_hdop"], 1.0)
