@@ -116,7 +116,7 @@ ESTIMATE_COLUMNS = ("beta", "yaw_rate", "yaw", "d1", "d2", "gyro_bias", "beta_st
 def _replay(args):
     from .ecu.step import OUTPUTS
     from .firmware.export import ecu_from_design
-    from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program
+    from .firmware.replay import LOG_COLUMNS, ecu_inputs, ecu_program, for_log_periods
     from .logs.channels import read_log
 
     d, _ = ecu_from_design(args.design)
@@ -124,7 +124,7 @@ def _replay(args):
     _check_log(log, args, d.controller.params)
     mu = d.controller.params.mu if getattr(args, "mu", None) is None else args.mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
-    prog = ecu_program(d)
+    prog = ecu_program(for_log_periods(d, U))
     Y = prog.run(U)
     _require_finite(args.log, log["t"], {name: OUTPUTS.columns(Y)[name] for name in
                                          ("beta", "yaw_rate", "steer_cmd", "yaw_moment_cmd")})

@@ -267,6 +267,22 @@ def test_the_telemetry_sideslip_is_the_conditioned_estimate_and_the_law_never_re
     assert gap.max() > 1e-4 and np.abs(col2["beta_telemetry"] - col["beta"]).max() > gap.max()
 
 
+def test_a_replay_at_another_rate_lifts_the_band_on_the_period(ecu):
+    """The guard uses a period only within half of the nominal one either side (GuardSettings.dt_band): a replay
+    of a log recorded at 200 Hz through a 1 kHz design runs with the log's periods (the band lifted), a 1 kHz
+    log with 30 % jitter keeps the band (and the C's behaviour)."""
+    from evstab.toolkit.firmware.replay import for_log_periods
+    assert ecu.guard.dt_band == 0.5 and ecu.filter.dt_nominal == 1e-3
+    rng = np.random.default_rng(3)
+    for dt, lifted in ((np.full(50, 5e-3), True), (1e-3 * (1 + 0.3 * rng.uniform(-1, 1, 50)), False),
+                       (np.full(50, 1.5e-3 * (1 + 1e-9)), True)):
+        U = INPUTS.zeros(50)
+        INPUTS.columns(U)["dt"][:] = dt
+        d = for_log_periods(ecu, U)
+        assert (d.guard.dt_band is None) == lifted
+        assert replace(d, guard=ecu.guard) == ecu  # nothing else changes
+
+
 def test_gain_set_round_trips_exactly(design_dir, ecu):
     doc = gain_set(design_dir, "cmd")
     text = gains_mod.dumps(doc)

@@ -108,11 +108,32 @@ def test_a_restart_hold_keeps_the_authority_out():
 
 
 def test_bad_period_uses_the_nominal_one():
-    for dt in (-1e-3, 0.0, np.nan, 1.0):
+    """Not positive, not a number, beyond dt_max, or outside [0.5, 1.5] x the nominal period (dt_band 0.5; the
+    band's edges a part in 1e9 inside and outside): the nominal period stands in. Without the band every period
+    up to dt_max is used as given."""
+    lo, hi = (1.0 - S.dt_band) * DT, (1.0 + S.dt_band) * DT
+    for dt, used in ((-1e-3, False), (0.0, False), (np.nan, False), (1.0, False), (lo * (1 - 1e-9), False),
+                     (lo * (1 + 1e-9), True), (hi * (1 - 1e-9), True), (hi * (1 + 1e-9), False), (2e-3, False)):
         seq = [_inputs(), _inputs()]
         seq[1]["dt"] = dt
         _, cs = _run(seq)
-        assert cs[1]["dt"] == DT
+        assert cs[1]["dt"] == (dt if used else DT), dt
+    wide = gm.GuardSettings(dt_band=None)
+    for dt, used in ((2e-3, True), (0.1, True), (0.1 * (1 + 1e-9), False)):
+        z, c = gm.guard(wide, gm.initial_state(), {**_inputs(), "dt": dt}, DT, 0.3, NUMPY)
+        assert c["dt"] == (dt if used else DT), dt
+
+
+def test_a_period_reported_twice_too_long_is_a_fault_of_dt():
+    """A 1 kHz step told 2 ms (a clock at half rate, a counter read twice): each period is replaced by the nominal
+    one, and the 50th in a row sets the dt bit (1); 0.2 s of good periods clear it."""
+    seq = [_inputs() for _ in range(400)]
+    for u in seq[:100]:
+        u["dt"] = 2e-3
+    zs, cs = _run(seq)
+    assert all(c["dt"] == DT for c in cs)
+    assert zs[48]["fault_word"] == 0.0 and zs[49]["fault_word"] == 1.0
+    assert zs[100 + 198]["fault_word"] == 1.0 and zs[100 + 199]["fault_word"] == 0.0
 
 
 def test_bad_fix_mu_and_wheel_speeds_read_as_absent():

@@ -3,8 +3,9 @@
 Each period, before the filter and the law see anything, :func:`guard` checks the inputs of
 :data:`toolkit.ecu.step.INPUTS`:
 
-* ``dt``: used only if ``0 < dt <= dt_max``; otherwise the nominal period (a clock that jumps back
-  or stalls must not scale the filter's and the law's integration);
+* ``dt``: used only if ``0 < dt <= dt_max`` and within ``dt_band`` of the nominal period (half of it either
+  side by default); otherwise the nominal period (a clock that jumps back, stalls or runs at another rate must
+  not scale the filter's and the law's integration);
 * each physical signal (:data:`CHECKS`) against its physical range (a NaN or an infinity fails the
   range, whatever the compiler's comparison of it) and, while it is not in fault, against a
   plausible change since its last good value: ``|x - last| <= rate * dt + step`` (the yaw rate: ``rate *
@@ -100,8 +101,13 @@ class GuardSettings:
     """Timing of the input guard."""
 
     dt_max: float = 0.1
-    """[s] Largest period used as given (a log replayed at 10 Hz still runs); above it, or at or below 0,
-    the nominal period."""
+    """[s] Largest period used as given; above it, or at or below 0, the nominal period."""
+    dt_band: float | None = 0.5
+    """A period outside ``[1 - dt_band, 1 + dt_band]`` times the nominal one is not used either: the nominal
+    period stands in, and 50 ms of such periods are a fault of ``dt`` (a 1 kHz task whose clock reports 2 ms
+    would double the filter's and the law's integration; task jitter stays well inside). None: no band, every
+    period up to ``dt_max`` used as given (``evstab replay`` of a log recorded at another rate than the design's
+    period: :func:`toolkit.firmware.replay.for_log_periods`)."""
     latch_time: float = 0.05
     """[s] A signal failing its checks this long in a row is in fault."""
     recover_time: float = 0.2
@@ -144,6 +150,8 @@ class GuardSettings:
     it up on a long straight (a bias ``b`` reaches ``b course_stuck_tau`` at most: 0.003 rad for 3 mrad/s)."""
 
     def __post_init__(self):
+        if self.dt_band is not None and not 0.0 < self.dt_band < 1.0:
+            raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
                   "course_stuck_tau"):
@@ -200,6 +208,8 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     # the period first: everything below integrates with it
     dt = g["dt"]
     dt_ok = (dt > 0.0) * (dt <= s.dt_max)
+    if s.dt_band is not None:
+        dt_ok = dt_ok * (dt >= (1.0 - s.dt_band) * dt_nominal) * (dt <= (1.0 + s.dt_band) * dt_nominal)
     dt_c = o.if_else(dt_ok, dt, dt_nominal)
     clean["dt"] = dt_c
     bad["dt"] = 1.0 - dt_ok

@@ -18,6 +18,7 @@ the previous period; default 0). ``*_true`` columns are never read.
 
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 
 import casadi as ca
@@ -164,6 +165,21 @@ class EcuProgram:
                           casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=ifix)
 
 
+def for_log_periods(d: EcuDesign, U: np.ndarray) -> EcuDesign:
+    """``d`` for a replay of the ECU inputs ``U``: its input guard's band on the period (``GuardSettings.dt_band``)
+    lifted when the log's median period lies outside it (a log recorded at another rate than the design's
+    period runs with the periods it has, up to ``dt_max``, as the step took them before the band), else ``d``.
+    The exported C keeps the design's band: on such a log it uses its nominal period."""
+    band = d.guard.dt_band
+    if band is None or len(U) == 0:
+        return d
+    T = d.filter.dt_nominal
+    median = float(np.median(INPUTS.columns(U)["dt"]))
+    if (1.0 - band) * T <= median <= (1.0 + band) * T:
+        return d
+    return dataclasses.replace(d, guard=dataclasses.replace(d.guard, dt_band=None))
+
+
 @lru_cache(maxsize=16)
 def ecu_program(d: EcuDesign, backend: str = "auto") -> EcuProgram:
     return EcuProgram(d, backend)
@@ -173,7 +189,7 @@ def replay(d: EcuDesign, log, mu: float | None = None, backend: str = "auto") ->
     """Run the ECU over a drive log; returns ``t`` and the :data:`OUTPUTS` columns."""
     mu = d.controller.params.mu if mu is None else mu
     U = ecu_inputs(log, mu, d.filter.dt_nominal, d.wheel_radius)
-    Y = ecu_program(d, backend).run(U)
+    Y = ecu_program(for_log_periods(d, U), backend).run(U)
     cols = log.columns if hasattr(log, "columns") else log
     out = {"t": np.asarray(cols["t"], float)}
     out.update(OUTPUTS.columns(Y))
