@@ -25,12 +25,13 @@ def _inputs(speed=16.7, wheel_radius=0.3):
     return u
 
 
-def _run(samples, z=None):
-    """The guard over a list of input dicts; returns the states and the clean inputs."""
+def _run(samples, z=None, dt_nominal=DT):
+    """The guard over a list of input dicts (the ECU's period ``dt_nominal``); returns the states and the clean
+    inputs."""
     z = gm.initial_state() if z is None else z
     zs, cs = [], []
     for u in samples:
-        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY)
+        z, c = gm.guard(S, z, u, dt_nominal, 0.3, NUMPY)
         zs.append(gm.STATE.as_dict(z))
         cs.append(c)
     return zs, cs
@@ -401,8 +402,9 @@ def test_a_quantised_course_in_a_steady_turn_is_not_stuck():
     """A receiver that reports its course in 1 deg steps, at 5 Hz, through a 20 s turn of 0.05 rad/s (2.9 deg/s:
     a step every 1.7 fixes, so some fixes repeat the last one): the heading has moved by less than one step,
     0.0175 rad, when the course changes, inside the 0.035 rad bound. Every fix is used."""
-    q, dt = np.radians(1.0), 0.01  # a 100 Hz ECU (the guard integrates over the dt it is given)
-    zs, cs = _run(_fixes(2000, lambda k: 0.05, lambda k: q * np.round(0.05 * dt * k / q), every=20, dt=dt))
+    q, dt = np.radians(1.0), 0.01  # a 100 Hz ECU
+    zs, cs = _run(_fixes(2000, lambda k: 0.05, lambda k: q * np.round(0.05 * dt * k / q), every=20, dt=dt),
+                  dt_nominal=dt)
     fixes = [cs[k]["gps_valid"] for k in range(0, 2000, 20)]
     courses = [q * np.round(0.05 * dt * k / q) for k in range(0, 2000, 20)]
     assert sum(a == b for a, b in zip(courses[1:], courses[:-1])) > 30  # repeats the guard must let through
@@ -412,7 +414,7 @@ def test_a_quantised_course_in_a_steady_turn_is_not_stuck():
 def test_a_gyro_bias_on_a_long_straight_does_not_make_a_steady_course_stuck():
     """On a straight road a course quantised to 1 deg repeats for minutes; a 3 mrad/s gyro bias would add up to
     the bound in 12 s, the leak holds it at ``b tau`` = 0.003 rad. Every fix of 120 s (100 Hz) is used."""
-    zs, cs = _run(_fixes(12000, lambda k: 0.003, lambda k: np.radians(30.0), every=20, dt=0.01))
+    zs, cs = _run(_fixes(12000, lambda k: 0.003, lambda k: np.radians(30.0), every=20, dt=0.01), dt_nominal=0.01)
     assert all(cs[k]["gps_valid"] == 1.0 for k in range(0, 12000, 20))
     # the leaky sum's limit b dt / (1 - L) = b tau, reached to 0.99^11999 (0): to rounding
     assert zs[-1]["course_turn"] == pytest.approx(0.003, rel=1e-9)
