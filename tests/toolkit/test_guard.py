@@ -418,3 +418,97 @@ def test_a_gyro_bias_on_a_long_straight_does_not_make_a_steady_course_stuck():
     assert all(cs[k]["gps_valid"] == 1.0 for k in range(0, 12000, 20))
     # the leaky sum's limit b dt / (1 - L) = b tau, reached to 0.99^11999 (0): to rounding
     assert zs[-1]["course_turn"] == pytest.approx(0.003, rel=1e-9)
+
+
+TRACK = 1.5
+"""[m] The rear track of the vote's tests (the wheels' yaw rate is ``(w_rr - w_rl) R / t_r``, R = 0.3 m)."""
+
+
+def _voted(samples, law_blend=0.0):
+    """:func:`_run` with the rear track given (the yaw rate is voted against the wheels and ``a_y``) and the
+    law's authority ``law_blend``."""
+    z, zs, cs = gm.initial_state(), [], []
+    for u in samples:
+        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
+        zs.append(gm.STATE.as_dict(z))
+        cs.append(c)
+    return zs, cs
+
+
+def _turning(n, gyro, ay, r_wheels, nz=0.0, speed=V):
+    """``n`` periods with the gyro at ``gyro`` (moving by 1e-9 rad/s every other period: live, not held; well
+    inside the boundary cases' 1e-6), the lateral acceleration ``ay``, the rear wheels apart by the yaw rate
+    ``r_wheels`` and the yaw moment ``nz`` applied."""
+    seq = [_inputs(speed) for _ in range(n)]
+    dw = r_wheels * TRACK / 0.3 / 2.0
+    for k, u in enumerate(seq):
+        u.update(yaw_rate=gyro + 1e-9 * (k % 2), ay=ay, yaw_moment_applied=nz,
+                 wheel_speed_rl=speed / 0.3 - dw, wheel_speed_rr=speed / 0.3 + dw)
+    return seq
+
+
+@pytest.mark.parametrize("share, out", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
+def test_the_wheels_and_the_accelerometer_outvote_an_offset_gyro(share, out):
+    """Straight road (wheels together, a_y 0) at 16.7 m/s, the gyro at ``share`` of vote_rate (0.05 rad/s; v r =
+    0.84 m/s^2, beyond the 0.634 band): just beyond, it is outvoted from the first period and reads as a_y / v =
+    0, and 50 ms latch the fault (bit 8); just inside, it is taken."""
+    r = share * S.vote_rate
+    zs, cs = _voted(_turning(100, r, 0.0, 0.0))
+    assert all(c["yaw_rate"] == (0.0 if out else r + 1e-9 * (k % 2)) for k, c in enumerate(cs))
+    assert zs[48]["fault_word"] == 0.0 and zs[49]["fault_word"] == (8.0 if out else 0.0)
+
+
+@pytest.mark.parametrize("share, out", [(1.0 - 1e-6, True), (1.0 + 1e-6, False)])
+def test_the_accelerometer_must_side_with_the_wheels(share, out):
+    """A 0.1 rad/s gyro, a_y 0, the wheels at r_w: a_y / v must be nearer the wheels than half the gyro's distance
+    from them, v r_w < 0.5 v (0.1 - r_w), i.e. r_w < 0.1 / 3. At ``share`` of that edge (the gyro 0.067 rad/s
+    from the wheels, beyond vote_rate): inside, outvoted; beyond, the three disagree and the gyro is taken."""
+    r_w = share * 0.1 / 3.0
+    _, cs = _voted(_turning(3, 0.1, 0.0, r_w))
+    assert cs[2]["yaw_rate"] == (0.0 if out else 0.1)
+
+
+def test_the_vote_starts_only_while_the_law_is_passive_and_the_motors_quiet():
+    """The same offset gyro while the law has any authority (blend 1e-9), or with 200 N m + 1 of yaw moment
+    applied (the motors' torque difference slips the rear wheels apart): taken. At 200 N m exactly: outvoted."""
+    for blend, nz, out in ((1e-9, 0.0, False), (0.0, S.vote_yaw_moment * (1 + 1e-9), False),
+                           (0.0, S.vote_yaw_moment, True)):
+        zs, _ = _voted(_turning(10, 0.1, 0.0, 0.0, nz=nz), law_blend=blend)
+        assert zs[-1]["bad_samples"] == (10.0 if out else 0.0), (blend, nz)
+
+
+def test_an_outvoted_gyro_stays_out_while_it_is_half_as_far_from_the_wheels():
+    """Outvoted at 0.1 rad/s on a straight road, then one sample of wheel noise (the wheels at 0.05 rad/s: a_y / v
+    no longer sides with them) keeps it out, as does a gyro at 0.045 rad/s (below vote_rate, but more than half of
+    it from the wheels and still beyond the accelerometer's band, 0.038 rad/s at this speed); back at 0.024 it
+    is taken."""
+    seq = _turning(6, 0.1, 0.0, 0.0)
+    noisy = _turning(1, 0.1, 0.0, 0.05)
+    seq = seq[:2] + noisy + seq[3:4] + _turning(1, 0.045, 0.0, 0.0) + _turning(1, 0.024, 0.0, 0.0)
+    _, cs = _voted(seq)
+    assert [c["yaw_rate"] for c in cs] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.024]
+
+
+def test_a_slide_is_not_outvoted():
+    """A slide at 16.7 m/s: the gyro and the rear wheels at 0.3 rad/s (the rear axle turns with the body), a_y 1
+    m/s^2 (beta' = -0.24 rad/s): the accelerometer disagrees with the gyro, the wheels do not: taken, every
+    sample."""
+    zs, cs = _voted(_turning(300, 0.3, 1.0, 0.3))
+    assert zs[-1]["bad_samples"] == 0.0
+
+
+def test_without_wheel_sensors_the_vote_holds_on_a_straight_road_only():
+    """Without wheel-speed sensors the ECU is given speed / R for both: the wheels' yaw rate is 0. A 0.1 rad/s
+    offset on a straight road is outvoted; a steady 4 m/s^2 turn (the gyro and a_y / v agree) is taken."""
+    zs, _ = _voted(_turning(100, 0.1, 0.0, 0.0))
+    assert zs[-1]["bad_samples"] == 100.0
+    zs, _ = _voted(_turning(100, 4.0 / V, 4.0, 0.0))
+    assert zs[-1]["bad_samples"] == 0.0
+
+
+@pytest.mark.parametrize("share, out", [(1.0 - 1e-6, True), (1.0 + 1e-6, False)])
+def test_the_vote_starts_only_in_nearly_straight_driving(share, out):
+    """A 0.15 rad/s gyro with the wheels together and a_y at ``share`` of vote_ay (1 m/s^2): below it the two
+    outvote the gyro, from it the vote does not start (at the limit a slipping wheel can side with a_y / v)."""
+    _, cs = _voted(_turning(3, 0.15, share * S.vote_ay, 0.0))
+    assert cs[2]["yaw_rate"] == (pytest.approx(share * S.vote_ay / V) if out else 0.15)

@@ -16,6 +16,12 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
   fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
   chase the yaw rate it no longer reports);
+* the yaw rate against the rear wheels and the lateral acceleration, two out of three, while the law is
+  passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by more than ``vote_rate`` and from
+  ``a_y / v`` by more than the consistency band, while ``a_y / v`` is nearer the wheels than half that
+  difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro moves like a live one and
+  passes the rate test). The vote rests while the law acts or the motors make a yaw moment: their torque
+  difference makes the rear wheels slip apart;
 * a speed sample that fails reads as the rear wheels' mean speed times the wheel radius where both wheel
   speeds are in range (the motors' yaw-moment torque speeds one wheel as much as it slows the other), else
   as the last good value; a speed in fault then takes the law's authority only while the wheels cannot
@@ -141,6 +147,18 @@ class GuardSettings:
     signal in a steady turn."""
     consistency_speed: float = 5.0
     """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
+    vote_rate: float = 0.05
+    """[rad/s] While the law is passive, a yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r``
+    by more than this, and from ``a_y / v`` by more than the consistency band, where ``a_y / v`` is nearer the
+    wheels than half that difference, is offset (a slide separates ``a_y / v`` from the yaw rate by
+    ``beta'``, and the wheels turn with the body; a wheel that slips separates the wheels, not ``a_y``). Without
+    wheel-speed sensors the wheels read a yaw rate of 0: the vote then holds on a straight road only ..."""
+    vote_ay: float = 1.0
+    """[m/s^2] ... it starts only while the car goes nearly straight (``|a_y|`` below this and the wheels' yaw rate
+    below ``vote_rate``: at the limit a wheel that slips can side with ``a_y / v`` against a live gyro) ..."""
+    vote_yaw_moment: float = 200.0
+    """[N m] ... and it rests while the applied yaw moment exceeds this (the motors' torque difference makes the
+    rear wheels slip apart by more than their yaw rate)."""
     course_stuck_turn: float = 0.035
     """[rad] A fix's course equal to the bit to that of the last fix whose course changed is stuck when the
     gyro's heading has moved by more than this since (2 deg: a receiver that quantises its course to 2 deg or
@@ -154,7 +172,7 @@ class GuardSettings:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau"):
+                  "course_stuck_tau", "vote_rate", "vote_ay", "vote_yaw_moment"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
@@ -167,6 +185,7 @@ STATE = Layout("ECU guard state", [
     *[Signal(f"good_{s}", "s", f"time {s} has passed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
     Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
+    Signal("yaw_outvoted", "-", "1 while the rear wheels and the lateral acceleration outvote the yaw rate"),
     Signal("last_course", "rad", "course of the last fix whose course changed"),
     Signal("course_seen", "-", "1 once a fix has been read"),
     Signal("course_turn", "rad", "the gyro's heading change since that fix (leaking with course_stuck_tau)"),
@@ -196,11 +215,14 @@ def initial_state() -> np.ndarray:
     return z
 
 
-def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY, calibration=()):
+def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, o=NUMPY, calibration=(),
+          track_rear: float = 0.0, law_blend=0.0):
     """One period of the guard: ``(z, inputs) -> (z_next, clean inputs)``, inputs a dict of
     :data:`toolkit.ecu.step.INPUTS` (numbers or casadi symbols). ``calibration``: ``(value, lower, upper)``
     of each calibration scalar (values numbers or symbols): one outside its limits (or not finite) is a fault
-    (``calibration``), which takes the law's authority until every value is back inside."""
+    (``calibration``), which takes the law's authority until every value is back inside. ``track_rear`` [m]: the
+    rear track the wheels' yaw rate is read with (0: no vote on the yaw rate); ``law_blend``: the law's
+    authority of the last period (the supervisor's blend; the vote rests above 0)."""
     st = STATE.as_dict(z)
     nxt = dict(st)
     clean = dict(g)
@@ -239,6 +261,22 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     disagree = (o.fabs(clean["ay"] - v * r_raw) > s.consistency_ay + s.consistency_rate * v) * \
         (v >= s.consistency_speed)
     stuck = (held >= s.stuck_time - 0.25 * dt_nominal) * disagree
+    wl, wr = g["wheel_speed_rl"], g["wheel_speed_rr"]
+    wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
+    if track_rear > 0:
+        # two out of three while the law is passive: the gyro far from the wheels' yaw rate and from a_y / v, which
+        # is nearer the wheels than half the gyro's distance from them (an offset gyro)
+        r_wheels = (o.if_else(wheels_ok, wr, 0.0) - o.if_else(wheels_ok, wl, 0.0)) * (wheel_radius / track_rear)
+        gap = o.fabs(r_raw - r_wheels)
+        quiet = (o.fabs(clean["yaw_moment_applied"]) <= s.vote_yaw_moment) * (law_blend <= 0.0)
+        straight = (o.fabs(clean["ay"]) < s.vote_ay) * (o.fabs(r_wheels) < s.vote_rate)
+        start = quiet * straight * (gap > s.vote_rate) * (o.fabs(clean["ay"] - v * r_wheels) < 0.5 * v * gap)
+        # once outvoted it stays so while it is still half as far from the wheels (a sample of wheel noise
+        # must not let the offset through: the law would start on it, and the vote rests while the law acts)
+        keep = st["yaw_outvoted"] * (gap > 0.5 * s.vote_rate)
+        outvoted = wheels_ok * disagree * o.fmax(start, keep)
+        nxt["yaw_outvoted"] = outvoted
+        stuck = o.fmax(stuck, outvoted)
     oks["yaw_rate"] = oks["yaw_rate"] * (1.0 - stuck)
     # a stuck yaw rate reads as the one the lateral acceleration gives (a_y / v: the car's velocity turns with its
     # body while it does not slide; the last good value of a stuck sensor is the stuck value); any other sample
@@ -247,8 +285,6 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     clean["yaw_rate"] = o.if_else(oks["yaw_rate"], g["yaw_rate"], o.if_else(stuck, kinematic, st["last_yaw_rate"]))
     # a speed sample not taken reads as the rear wheels' mean speed where both are in range (the motors' torque
     # difference speeds one as much as it slows the other)
-    wl, wr = g["wheel_speed_rl"], g["wheel_speed_rr"]
-    wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
     from_wheels = 0.5 * (o.if_else(wheels_ok, wl, 0.0) + o.if_else(wheels_ok, wr, 0.0)) * wheel_radius
     clean["speed"] = o.if_else(oks["speed"], g["speed"], o.if_else(wheels_ok, from_wheels, st["last_speed"]))
     for c in CHECKS:

@@ -516,8 +516,10 @@ def ecu_guard(d: EcuDesign, z, u, o=NUMPY, cal=None):
     limits :meth:`EcuDesign.calibration` declares."""
     lim = d.calibration()
     values = [c.value for c in lim] if cal is None else cal
+    sup = z[d.layout.slot("supervisor")]
     zg_n, clean = guard_mod.guard(d.guard, z[d.layout.slot("guard")], INPUTS.as_dict(u), d.filter.dt_nominal,
-                                  d.wheel_radius, o, [(v, c.lower, c.upper) for v, c in zip(values, lim)])
+                                  d.wheel_radius, o, [(v, c.lower, c.upper) for v, c in zip(values, lim)],
+                                  d.track_rear, sup[sup_mod.STATE.index("blend")])
     return zg_n, INPUTS.pack(clean, o)
 
 
