@@ -512,3 +512,53 @@ def test_the_vote_starts_only_in_nearly_straight_driving(share, out):
     outvote the gyro, from it the vote does not start (at the limit a slipping wheel can side with a_y / v)."""
     _, cs = _voted(_turning(3, 0.15, share * S.vote_ay, 0.0))
     assert cs[2]["yaw_rate"] == (pytest.approx(share * S.vote_ay / V) if out else 0.15)
+
+
+def _steering(n, steer, driver, law_blend=0.0):
+    """``n`` periods at 16.7 m/s with the road-wheel angle ``steer(k)`` and the driver's ``driver(k)``, the law's
+    authority ``law_blend`` throughout."""
+    seq = [_inputs() for _ in range(n)]
+    for k, u in enumerate(seq):
+        u["steer"], u["steer_cmd_driver"] = steer(k), driver(k)
+    z, zs, cs = gm.initial_state(), [], []
+    for u in seq:
+        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY, law_blend=law_blend)
+        zs.append(gm.STATE.as_dict(z))
+        cs.append(c)
+    return zs, cs
+
+
+@pytest.mark.parametrize("share, apart", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
+def test_the_drivers_angle_and_the_road_wheels_agree_while_the_law_is_passive(share, apart):
+    """Road wheels at 0.01 rad, the law passive from the start: from period 300 the driver's reading is ``share`` of
+    the band away (0.5 deg + 10 % of 0.01 rad = 0.0097 rad; inside the rate test's 0.015 rad step). Just beyond it
+    both are replaced by their last good values; just inside, taken."""
+    band = S.steer_agree + S.steer_agree_share * 0.01
+    zs, cs = _steering(310, lambda k: 0.01, lambda k: 0.01 + (share * band if k >= 300 else 0.0))
+    assert cs[305]["steer_cmd_driver"] == (0.01 if apart else 0.01 + share * band)
+    assert cs[305]["steer"] == 0.01 and zs[305]["bad_samples"] == (6.0 if apart else 0.0)
+
+
+def test_a_drivers_steer_offset_is_held_named_and_recovers():
+    """A 2 deg offset on the driver's reading from period 300 to 800 (the law passive since the start): the law
+    never reads it (the last good angle stands in), the 50th period apart names both angles (bits 4 and 64) and
+    takes the authority, and 0.2 s after the offset ends both recover."""
+    zs, cs = _steering(1100, lambda k: 0.01, lambda k: 0.01 + (np.radians(2.0) if 300 <= k < 800 else 0.0))
+    assert all(c["steer_cmd_driver"] == 0.01 for c in cs)
+    word = [z["fault_word"] for z in zs]
+    assert word[348] == 0.0 and word[349] == 4.0 + 64.0
+    assert word[800 + 198] == 68.0 and word[800 + 199] == 0.0
+    assert zs[600]["authority"] == 0.0
+
+
+def test_the_angles_are_not_compared_while_the_law_acts_or_has_just_stopped():
+    """0.7 deg apart (beyond the band, inside the rate test's step) while the law has authority (its correction is
+    on the road wheels): taken throughout; with the law passive from the start, taken until it has been passive
+    for steer_settle (0.2 s: period 200, the gear following a correction out), failed from then (replaced by the
+    last good value, here the same reading: counted)."""
+    apart = np.radians(0.7)
+    zs, cs = _steering(400, lambda k: 0.01, lambda k: 0.01 + apart * (k >= 100), law_blend=1e-9)
+    assert cs[399]["steer_cmd_driver"] == 0.01 + apart and zs[399]["bad_samples"] == 0.0
+    zs, _ = _steering(201, lambda k: 0.01, lambda k: 0.01 + apart * (k >= 100))
+    assert zs[199]["bad_samples"] == 0.0 and zs[200]["bad_samples"] == 1.0
+

@@ -22,6 +22,10 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro moves like a live one and
   passes the rate test). The vote rests while the law acts or the motors make a yaw moment: their torque
   difference makes the rear wheels slip apart;
+* the driver's angle against the road wheels': with the law passive for ``steer_settle`` (a superposition gear
+  then adds nothing), ``steer_cmd_driver`` and ``steer`` more than ``steer_agree`` plus ``steer_agree_share`` of
+  the angle apart are both replaced by their last good values (an offset on either moves plausibly; which one
+  is wrong, nothing tells, so both are named);
 * a speed sample that fails reads as the rear wheels' mean speed times the wheel radius where both wheel
   speeds are in range (the motors' yaw-moment torque speeds one wheel as much as it slows the other), else
   as the last good value; a speed in fault then takes the law's authority only while the wheels cannot
@@ -159,6 +163,16 @@ class GuardSettings:
     vote_yaw_moment: float = 200.0
     """[N m] ... and it rests while the applied yaw moment exceeds this (the motors' torque difference makes the
     rear wheels slip apart by more than their yaw rate)."""
+    steer_agree: float | None = 0.0087
+    """[rad] While the law has been passive for ``steer_settle``, the driver's angle (``steer_cmd_driver``) and the
+    road-wheel angle (``steer``) agree within this plus ``steer_agree_share`` of the road-wheel angle (0.5 deg
+    plus 10 %: the column's twist and a variable-ratio rack); apart, both are replaced by their last good values
+    (a superposition gear adds nothing while the law is passive, so the two are the same angle). None: not
+    checked (a steer-by-wire servo lags the driver by its time constant times the steer rate) ..."""
+    steer_agree_share: float = 0.1
+    """... (the share) ..."""
+    steer_settle: float = 0.2
+    """[s] ... the time the law must have been passive (its correction has ramped out and the gear followed)."""
     course_stuck_turn: float = 0.035
     """[rad] A fix's course equal to the bit to that of the last fix whose course changed is stuck when the
     gyro's heading has moved by more than this since (2 deg: a receiver that quantises its course to 2 deg or
@@ -168,11 +182,15 @@ class GuardSettings:
     it up on a long straight (a bias ``b`` reaches ``b course_stuck_tau`` at most: 0.003 rad for 3 mrad/s)."""
 
     def __post_init__(self):
+        if self.steer_agree is not None and not (np.isfinite(self.steer_agree) and self.steer_agree > 0):
+            raise ModelError(f"guard setting 'steer_agree' must be None (not checked) or a finite number > 0, got "
+                             f"{self.steer_agree!r}")
         if self.dt_band is not None and not 0.0 < self.dt_band < 1.0:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau", "vote_rate", "vote_ay", "vote_yaw_moment"):
+                  "course_stuck_tau", "vote_rate", "vote_ay", "vote_yaw_moment", "steer_agree_share",
+                  "steer_settle"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
@@ -186,6 +204,7 @@ STATE = Layout("ECU guard state", [
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
     Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
     Signal("yaw_outvoted", "-", "1 while the rear wheels and the lateral acceleration outvote the yaw rate"),
+    Signal("passive_time", "s", "time the law has been passive (saturates at twice steer_settle)"),
     Signal("last_course", "rad", "course of the last fix whose course changed"),
     Signal("course_seen", "-", "1 once a fix has been read"),
     Signal("course_turn", "rad", "the gyro's heading change since that fix (leaking with course_stuck_tau)"),
@@ -256,8 +275,20 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
             ok = ok * o.fmax(near, o.fmax(fault, first))
         oks[c.name] = ok
         clean[c.name] = o.if_else(ok, x, last)
-    # the yaw rate against the lateral acceleration: a held one that disagrees is stuck
     v = o.fabs(clean["speed"])
+    if s.steer_agree is not None:
+        # the driver's angle against the road wheels': with the law passive long enough for the superposition
+        # gear's correction to be gone, the road-wheel angle is the driver's; apart, neither is taken (which of
+        # the two sensors is wrong, nothing tells: both are replaced by their last good values and named)
+        passive = law_blend <= 0.0
+        nxt["passive_time"] = o.if_else(passive, o.fmin(st["passive_time"] + dt_c, 2.0 * s.steer_settle), 0.0)
+        settled = passive * (st["passive_time"] >= s.steer_settle - 0.25 * dt_nominal)
+        band = s.steer_agree + s.steer_agree_share * o.fabs(clean["steer"])
+        apart = settled * (v >= s.consistency_speed) * (o.fabs(g["steer_cmd_driver"] - g["steer"]) > band)
+        for name in ("steer", "steer_cmd_driver"):
+            oks[name] = oks[name] * (1.0 - apart)
+            clean[name] = o.if_else(oks[name], g[name], st[f"last_{name}"])
+    # the yaw rate against the lateral acceleration: a held one that disagrees is stuck
     disagree = (o.fabs(clean["ay"] - v * r_raw) > s.consistency_ay + s.consistency_rate * v) * \
         (v >= s.consistency_speed)
     stuck = (held >= s.stuck_time - 0.25 * dt_nominal) * disagree

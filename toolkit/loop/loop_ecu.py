@@ -137,8 +137,8 @@ class LoopEcu:
         zg, raw = z[gs], ECU_INPUTS.as_dict(u)
         # the loop's calibration is a sweep's run-time input, which the design explores beyond the A2L's limits:
         # it is not checked here (the exported step checks its own, toolkit.ecu.step.ecu_guard)
-        # the law's authority of the last period (the supervisor's blend; a yaw-pi law has none: 0)
-        blend = z[ne + ctl_mod.STATE.size + sup_mod.STATE.index("blend")] if self.kind != "yaw-pi" else 0.0
+        # the law's authority of the last period (the supervisor's blend; a yaw-pi law acts throughout: 1)
+        blend = z[ne + ctl_mod.STATE.size + sup_mod.STATE.index("blend")] if self.kind != "yaw-pi" else 1.0
         zg, clean = guard_mod.guard(d.guard, zg, raw, d.filter.dt_nominal, d.wheel_radius, o,
                                     track_rear=d.track_rear, law_blend=blend)
         u = ECU_INPUTS.pack(clean, o)
