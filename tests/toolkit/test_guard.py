@@ -424,12 +424,16 @@ TRACK = 1.5
 """[m] The rear track of the vote's tests (the wheels' yaw rate is ``(w_rr - w_rl) R / t_r``, R = 0.3 m)."""
 
 
+VOTE = gm.GuardSettings(vote_rate=0.05)
+"""The guard with the vote on the yaw rate (off by default)."""
+
+
 def _voted(samples, law_blend=0.0):
-    """:func:`_run` with the rear track given (the yaw rate is voted against the wheels and ``a_y``) and the
-    law's authority ``law_blend``."""
+    """:func:`_run` with the vote on and the rear track given (the yaw rate is voted against the wheels and
+    ``a_y``), and the law's authority ``law_blend``."""
     z, zs, cs = gm.initial_state(), [], []
     for u in samples:
-        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
+        z, c = gm.guard(VOTE, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
         zs.append(gm.STATE.as_dict(z))
         cs.append(c)
     return zs, cs
@@ -452,7 +456,7 @@ def test_the_wheels_and_the_accelerometer_outvote_an_offset_gyro(share, out):
     """Straight road (wheels together, a_y 0) at 16.7 m/s, the gyro at ``share`` of vote_rate (0.05 rad/s; v r =
     0.84 m/s^2, beyond the 0.634 band): just beyond, it is outvoted from the first period and reads as a_y / v =
     0, and 50 ms latch the fault (bit 8); just inside, it is taken."""
-    r = share * S.vote_rate
+    r = share * VOTE.vote_rate
     zs, cs = _voted(_turning(100, r, 0.0, 0.0))
     assert all(c["yaw_rate"] == (0.0 if out else r + 1e-9 * (k % 2)) for k, c in enumerate(cs))
     assert zs[48]["fault_word"] == 0.0 and zs[49]["fault_word"] == (8.0 if out else 0.0)
@@ -471,8 +475,8 @@ def test_the_accelerometer_must_side_with_the_wheels(share, out):
 def test_the_vote_starts_only_while_the_law_is_passive_and_the_motors_quiet():
     """The same offset gyro while the law has any authority (blend 1e-9), or with 200 N m + 1 of yaw moment
     applied (the motors' torque difference slips the rear wheels apart): taken. At 200 N m exactly: outvoted."""
-    for blend, nz, out in ((1e-9, 0.0, False), (0.0, S.vote_yaw_moment * (1 + 1e-9), False),
-                           (0.0, S.vote_yaw_moment, True)):
+    for blend, nz, out in ((1e-9, 0.0, False), (0.0, VOTE.vote_yaw_moment * (1 + 1e-9), False),
+                           (0.0, VOTE.vote_yaw_moment, True)):
         zs, _ = _voted(_turning(10, 0.1, 0.0, 0.0, nz=nz), law_blend=blend)
         assert zs[-1]["bad_samples"] == (10.0 if out else 0.0), (blend, nz)
 
@@ -497,6 +501,13 @@ def test_a_slide_is_not_outvoted():
     assert zs[-1]["bad_samples"] == 0.0
 
 
+def test_the_vote_is_off_by_default():
+    """The default guard takes the offset gyro the vote would outvote."""
+    assert S.vote_rate is None
+    z, c = gm.guard(S, gm.initial_state(), {**_inputs(), "yaw_rate": 0.1}, DT, 0.3, NUMPY, track_rear=TRACK)
+    assert c["yaw_rate"] == 0.1 and gm.STATE.as_dict(z)["bad_samples"] == 0.0
+
+
 def test_without_wheel_sensors_the_vote_holds_on_a_straight_road_only():
     """Without wheel-speed sensors the ECU is given speed / R for both: the wheels' yaw rate is 0. A 0.1 rad/s
     offset on a straight road is outvoted; a steady 4 m/s^2 turn (the gyro and a_y / v agree) is taken."""
@@ -510,8 +521,8 @@ def test_without_wheel_sensors_the_vote_holds_on_a_straight_road_only():
 def test_the_vote_starts_only_in_nearly_straight_driving(share, out):
     """A 0.15 rad/s gyro with the wheels together and a_y at ``share`` of vote_ay (1 m/s^2): below it the two
     outvote the gyro, from it the vote does not start (at the limit a slipping wheel can side with a_y / v)."""
-    _, cs = _voted(_turning(3, 0.15, share * S.vote_ay, 0.0))
-    assert cs[2]["yaw_rate"] == (pytest.approx(share * S.vote_ay / V) if out else 0.15)
+    _, cs = _voted(_turning(3, 0.15, share * VOTE.vote_ay, 0.0))
+    assert cs[2]["yaw_rate"] == (pytest.approx(share * VOTE.vote_ay / V) if out else 0.15)
 
 
 def _steering(n, steer, driver, law_blend=0.0):

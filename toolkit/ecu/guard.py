@@ -151,8 +151,10 @@ class GuardSettings:
     signal in a steady turn."""
     consistency_speed: float = 5.0
     """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
-    vote_rate: float = 0.05
-    """[rad/s] While the law is passive, a yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r``
+    vote_rate: float | None = None
+    """[rad/s] (None: no vote, the default; 0.05 catches a 0.1 rad/s offset, but changes the tuned design of
+    ``evstab design --quick`` on compact-ev: a vote starts in some of its tuning runs.) While the law is passive, a
+    yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r``
     by more than this, and from ``a_y / v`` by more than the consistency band, where ``a_y / v`` is nearer the
     wheels than half that difference, is offset (a slide separates ``a_y / v`` from the yaw rate by
     ``beta'``, and the wheels turn with the body; a wheel that slips separates the wheels, not ``a_y``). Without
@@ -185,11 +187,14 @@ class GuardSettings:
         if self.steer_agree is not None and not (np.isfinite(self.steer_agree) and self.steer_agree > 0):
             raise ModelError(f"guard setting 'steer_agree' must be None (not checked) or a finite number > 0, got "
                              f"{self.steer_agree!r}")
+        if self.vote_rate is not None and not (np.isfinite(self.vote_rate) and self.vote_rate > 0):
+            raise ModelError(f"guard setting 'vote_rate' must be None (no vote) or a finite number > 0, got "
+                             f"{self.vote_rate!r}")
         if self.dt_band is not None and not 0.0 < self.dt_band < 1.0:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau", "vote_rate", "vote_ay", "vote_yaw_moment", "steer_agree_share",
+                  "course_stuck_tau", "vote_ay", "vote_yaw_moment", "steer_agree_share",
                   "steer_settle"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
@@ -294,7 +299,7 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     stuck = (held >= s.stuck_time - 0.25 * dt_nominal) * disagree
     wl, wr = g["wheel_speed_rl"], g["wheel_speed_rr"]
     wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
-    if track_rear > 0:
+    if track_rear > 0 and s.vote_rate is not None:
         # two out of three while the law is passive: the gyro far from the wheels' yaw rate and from a_y / v, which
         # is nearer the wheels than half the gyro's distance from them (an offset gyro)
         r_wheels = (o.if_else(wheels_ok, wr, 0.0) - o.if_else(wheels_ok, wl, 0.0)) * (wheel_radius / track_rear)
