@@ -16,8 +16,8 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
   fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
   chase the yaw rate it no longer reports);
-* the yaw rate against the rear wheels and the lateral acceleration, two out of three, while the law is
-  passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by more than ``vote_rate`` and from
+* with ``vote_rate`` set (off by default), the yaw rate against the rear wheels and the lateral acceleration,
+  two out of three, while the law is passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by more than ``vote_rate`` and from
   ``a_y / v`` by more than the consistency band, while ``a_y / v`` is nearer the wheels than half that
   difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro moves like a live one and
   passes the rate test). The vote rests while the law acts or the motors make a yaw moment: their torque
