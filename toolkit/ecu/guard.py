@@ -17,11 +17,11 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
   chase the yaw rate it no longer reports);
 * with ``vote_rate`` set (off by default), the yaw rate against the rear wheels and the lateral acceleration,
-  two out of three, while the law is passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by more than ``vote_rate`` and from
-  ``a_y / v`` by more than the consistency band, while ``a_y / v`` is nearer the wheels than half that
-  difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro moves like a live one and
-  passes the rate test). The vote rests while the law acts or the motors make a yaw moment: their torque
-  difference makes the rear wheels slip apart;
+  two out of three, while the law is passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by
+  more than ``vote_rate`` and from ``a_y / v`` by more than the consistency band, while ``a_y / v`` is nearer
+  the wheels than half that difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro
+  moves like a live one and passes the rate test). The vote rests while the law acts or the motors make a yaw
+  moment: their torque difference makes the rear wheels slip apart;
 * the driver's angle against the road wheels': with the law passive for ``steer_settle`` (a superposition gear
   then adds nothing), ``steer_cmd_driver`` and ``steer`` more than ``steer_agree`` plus ``steer_agree_share`` of
   the angle apart are both replaced by their last good values (an offset on either moves plausibly; which one
@@ -33,8 +33,9 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
 * a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
   is dropped (``gps_valid`` 0), and so is a stuck one: a course equal to the bit to the last fix whose course
   changed while the gyro says the car has turned by more than ``course_stuck_turn`` since (a receiver's or a
-  gateway's repeated message: each fix is plausible by itself, and the filter would pull the heading back); ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear
-  wheel speed out of range as no sensor (``speed / wheel radius``: slip control off).
+  gateway's repeated message: each fix is plausible by itself, and the filter would pull the heading back);
+  ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear wheel speed out of range as no sensor
+  (``speed / wheel radius``: slip control off).
 
 A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
 row, recovering after :data:`GPS_RECOVER_FIXES` good ones): its bit in ``fault_word``
@@ -153,10 +154,10 @@ class GuardSettings:
     """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
     vote_rate: float | None = None
     """[rad/s] (None: no vote, the default; 0.05 catches a 0.1 rad/s offset, but changes the tuned design of
-    ``evstab design --quick`` on compact-ev: a vote starts in some of its tuning runs.) While the law is passive, a
-    yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r``
-    by more than this, and from ``a_y / v`` by more than the consistency band, where ``a_y / v`` is nearer the
-    wheels than half that difference, is offset (a slide separates ``a_y / v`` from the yaw rate by
+    ``evstab design --quick`` on compact-ev: a vote starts in some of its tuning runs.) While the law is
+    passive, a yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r`` by more than this, and
+    from ``a_y / v`` by more than the consistency band, where ``a_y / v`` is nearer the wheels than half that
+    difference, is offset (a slide separates ``a_y / v`` from the yaw rate by
     ``beta'``, and the wheels turn with the body; a wheel that slips separates the wheels, not ``a_y``). Without
     wheel-speed sensors the wheels read a yaw rate of 0: the vote then holds on a straight road only ..."""
     vote_ay: float = 1.0
@@ -281,11 +282,11 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         oks[c.name] = ok
         clean[c.name] = o.if_else(ok, x, last)
     v = o.fabs(clean["speed"])
+    passive = law_blend <= 0.0  # the law had no authority last period (both cross-checks below rest otherwise)
     if s.steer_agree is not None:
         # the driver's angle against the road wheels': with the law passive long enough for the superposition
         # gear's correction to be gone, the road-wheel angle is the driver's; apart, neither is taken (which of
         # the two sensors is wrong, nothing tells: both are replaced by their last good values and named)
-        passive = law_blend <= 0.0
         nxt["passive_time"] = o.if_else(passive, o.fmin(st["passive_time"] + dt_c, 2.0 * s.steer_settle), 0.0)
         settled = passive * (st["passive_time"] >= s.steer_settle - 0.25 * dt_nominal)
         band = s.steer_agree + s.steer_agree_share * o.fabs(clean["steer"])
@@ -304,7 +305,7 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         # is nearer the wheels than half the gyro's distance from them (an offset gyro)
         r_wheels = (o.if_else(wheels_ok, wr, 0.0) - o.if_else(wheels_ok, wl, 0.0)) * (wheel_radius / track_rear)
         gap = o.fabs(r_raw - r_wheels)
-        quiet = (o.fabs(clean["yaw_moment_applied"]) <= s.vote_yaw_moment) * (law_blend <= 0.0)
+        quiet = (o.fabs(clean["yaw_moment_applied"]) <= s.vote_yaw_moment) * passive
         straight = (o.fabs(clean["ay"]) < s.vote_ay) * (o.fabs(r_wheels) < s.vote_rate)
         start = quiet * straight * (gap > s.vote_rate) * (o.fabs(clean["ay"] - v * r_wheels) < 0.5 * v * gap)
         # once outvoted it stays so while it is still half as far from the wheels (a sample of wheel noise
