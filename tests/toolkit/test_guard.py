@@ -425,72 +425,107 @@ TRACK = 1.5
 
 
 VOTE = gm.GuardSettings(vote_rate=0.05)
-"""The guard with the vote on the yaw rate (off by default)."""
+"""The guard with the vote on the yaw rate (its default)."""
+SETTLE = 1000
+"""Periods of steady inputs before a test's event: past ``vote_settle`` (200), and the low-passed wheels and
+``a_y / v`` within (20/21)^1000 = 6e-22 of their inputs (a boundary case's 1e-6 of 0.03 rad/s is 3e-8)."""
 
 
-def _voted(samples, law_blend=0.0):
+def _voted(samples, law_blend=0.0, settings=VOTE):
     """:func:`_run` with the vote on and the rear track given (the yaw rate is voted against the wheels and
     ``a_y``), and the law's authority ``law_blend``."""
     z, zs, cs = gm.initial_state(), [], []
     for u in samples:
-        z, c = gm.guard(VOTE, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
+        z, c = gm.guard(settings, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
         zs.append(gm.STATE.as_dict(z))
         cs.append(c)
     return zs, cs
 
 
-def _turning(n, gyro, ay, r_wheels, nz=0.0, speed=V):
+def _turning(n, gyro, ay, r_wheels, nz=0.0, speed=V, k0=0):
     """``n`` periods with the gyro at ``gyro`` (moving by 1e-9 rad/s every other period: live, not held; well
     inside the boundary cases' 1e-6), the lateral acceleration ``ay``, the rear wheels apart by the yaw rate
     ``r_wheels`` and the yaw moment ``nz`` applied."""
     seq = [_inputs(speed) for _ in range(n)]
     dw = r_wheels * TRACK / 0.3 / 2.0
     for k, u in enumerate(seq):
-        u.update(yaw_rate=gyro + 1e-9 * (k % 2), ay=ay, yaw_moment_applied=nz,
+        u.update(yaw_rate=gyro + 1e-9 * ((k0 + k) % 2), ay=ay, yaw_moment_applied=nz,
                  wheel_speed_rl=speed / 0.3 - dw, wheel_speed_rr=speed / 0.3 + dw)
     return seq
 
 
+def _settled(gyro, ay, r_wheels, nz=0.0):
+    """:data:`SETTLE` periods of :func:`_turning` (the gyro agreeing with what the test's event starts from)."""
+    return _turning(SETTLE, gyro, ay, r_wheels, nz)
+
+
 @pytest.mark.parametrize("share, out", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
 def test_the_wheels_and_the_accelerometer_outvote_an_offset_gyro(share, out):
-    """Straight road (wheels together, a_y 0) at 16.7 m/s, the gyro at ``share`` of vote_rate (0.05 rad/s; v r =
-    0.84 m/s^2, beyond the 0.634 band): just beyond, it is outvoted from the first period and reads as a_y / v =
-    0, and 50 ms latch the fault (bit 8); just inside, it is taken."""
+    """Straight road (wheels together, a_y 0) at 16.7 m/s; then the gyro at ``share`` of vote_rate (0.05 rad/s;
+    v r = 0.84 m/s^2, beyond the 0.634 band): just beyond, it is outvoted from its first period and reads as
+    a_y / v = 0, and 50 ms latch the fault (bit 8); just inside, it is taken."""
     r = share * VOTE.vote_rate
-    zs, cs = _voted(_turning(100, r, 0.0, 0.0))
-    assert all(c["yaw_rate"] == (0.0 if out else r + 1e-9 * (k % 2)) for k, c in enumerate(cs))
-    assert zs[48]["fault_word"] == 0.0 and zs[49]["fault_word"] == (8.0 if out else 0.0)
+    zs, cs = _voted(_settled(0.0, 0.0, 0.0) + _turning(100, r, 0.0, 0.0, k0=SETTLE))
+    assert all(c["yaw_rate"] == 1e-9 * (k % 2) for k, c in enumerate(cs[:SETTLE]))
+    assert all(c["yaw_rate"] == (0.0 if out else r + 1e-9 * (k % 2)) for k, c in enumerate(cs[SETTLE:]))
+    assert zs[SETTLE + 48]["fault_word"] == 0.0 and zs[SETTLE + 49]["fault_word"] == (8.0 if out else 0.0)
 
 
 @pytest.mark.parametrize("share, out", [(1.0 - 1e-6, True), (1.0 + 1e-6, False)])
 def test_the_accelerometer_must_side_with_the_wheels(share, out):
-    """A 0.1 rad/s gyro, a_y 0, the wheels at r_w: a_y / v must be nearer the wheels than half the gyro's distance
-    from them, v r_w < 0.5 v (0.1 - r_w), i.e. r_w < 0.1 / 3. At ``share`` of that edge (the gyro 0.067 rad/s
-    from the wheels, beyond vote_rate): inside, outvoted; beyond, the three disagree and the gyro is taken."""
+    """a_y 0, the wheels (and the gyro) at r_w, then a 0.1 rad/s gyro: a_y / v must be nearer the wheels than half
+    the gyro's distance from them, v r_w < 0.5 v (0.1 - r_w), i.e. r_w < 0.1 / 3. At ``share`` of that edge (the
+    gyro 0.067 rad/s from the wheels, beyond vote_rate): inside, outvoted; beyond, the three disagree and the
+    gyro is taken."""
     r_w = share * 0.1 / 3.0
-    _, cs = _voted(_turning(3, 0.1, 0.0, r_w))
-    assert cs[2]["yaw_rate"] == (0.0 if out else 0.1)
+    _, cs = _voted(_settled(r_w, 0.0, r_w) + _turning(3, 0.1, 0.0, r_w))
+    assert cs[-1]["yaw_rate"] == (0.0 if out else 0.1)
 
 
 def test_the_vote_starts_only_while_the_law_is_passive_and_the_motors_quiet():
-    """The same offset gyro while the law has any authority (blend 1e-9), or with 200 N m + 1 of yaw moment
+    """The same offset gyro while the law has any authority (blend 1e-9), or with 200 N m + 1e-9 of yaw moment
     applied (the motors' torque difference slips the rear wheels apart): taken. At 200 N m exactly: outvoted."""
     for blend, nz, out in ((1e-9, 0.0, False), (0.0, VOTE.vote_yaw_moment * (1 + 1e-9), False),
                            (0.0, VOTE.vote_yaw_moment, True)):
-        zs, _ = _voted(_turning(10, 0.1, 0.0, 0.0, nz=nz), law_blend=blend)
+        zs, _ = _voted(_settled(0.0, 0.0, 0.0, nz) + _turning(10, 0.1, 0.0, 0.0, nz=nz), law_blend=blend)
         assert zs[-1]["bad_samples"] == (10.0 if out else 0.0), (blend, nz)
 
 
-def test_an_outvoted_gyro_stays_out_while_it_is_half_as_far_from_the_wheels():
-    """Outvoted at 0.1 rad/s on a straight road, then one sample of wheel noise (the wheels at 0.05 rad/s: a_y / v
-    no longer sides with them) keeps it out, as does a gyro at 0.045 rad/s (below vote_rate, but more than half of
-    it from the wheels and still beyond the accelerometer's band, 0.038 rad/s at this speed); back at 0.024 it
-    is taken."""
-    seq = _turning(6, 0.1, 0.0, 0.0)
-    noisy = _turning(1, 0.1, 0.0, 0.05)
-    seq = seq[:2] + noisy + seq[3:4] + _turning(1, 0.045, 0.0, 0.0) + _turning(1, 0.024, 0.0, 0.0)
+def test_the_vote_waits_vote_settle_after_a_yaw_moment():
+    """A yaw moment of 201 N m for 50 periods, then none; the gyro at 0.1 rad/s from the 150th quiet period: the
+    motors have been quiet for vote_settle (0.2 s) at the 200th, the first outvoted sample (the low-passed wheels
+    remember the slip the moment made)."""
+    seq = _turning(50, 0.0, 0.0, 0.0, nz=VOTE.vote_yaw_moment + 1.0) + _turning(150, 0.0, 0.0, 0.0, k0=50) + \
+        _turning(100, 0.1, 0.0, 0.0, k0=200)
     _, cs = _voted(seq)
-    assert [c["yaw_rate"] for c in cs] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.024]
+    taken = [c["yaw_rate"] != 0.0 for c in cs[200:]]
+    assert taken[:50] == [True] * 50 and not any(taken[50:])
+
+
+def test_an_outvoted_gyro_stays_out_while_it_is_half_as_far_from_the_wheels():
+    """Outvoted at 0.1 rad/s on a straight road, then a wheel sample reading 1 rad/s of yaw rate (the low-passed
+    wheels at 1/21: a_y / v no longer sides with them, the start fails) keeps it out; the wheels back together,
+    their low-passed yaw rate f decays by 20/21 a period, and a gyro at f + 0.045 rad/s (below vote_rate, but more
+    than half of it from the wheels and still beyond the accelerometer's band, 0.038 rad/s at this speed) stays
+    out; at f + 0.024 it is taken."""
+    lag = DT / (VOTE.vote_tau + DT)
+    f1 = 1.0 * lag
+    f2, f3 = f1 * (1 - lag), f1 * (1 - lag) ** 2
+    seq = _settled(0.0, 0.0, 0.0) + _turning(2, 0.1, 0.0, 0.0) + _turning(1, 0.1, 0.0, 1.0)
+    _, cs = _voted(seq)
+    assert abs(f1) > 0.5 * abs(0.1 - f1) and cs[-1]["yaw_rate"] == 0.0  # kept, not started
+    seq += _turning(1, f2 + 0.045, 0.0, 0.0) + _turning(1, f3 + 0.024, 0.0, 0.0)
+    _, cs = _voted(seq)
+    assert [c["yaw_rate"] for c in cs[SETTLE:]] == [0.0, 0.0, 0.0, 0.0, f3 + 0.024]
+
+
+def test_a_sample_of_wheel_noise_does_not_outvote_a_live_gyro():
+    """The gyro and the rear wheels at 0.045 rad/s, a_y 0 (a sideslip rate of -0.045 rad/s: the gyro beyond the
+    accelerometer's band); one wheel sample reads -0.01 rad/s (0.055 from the gyro, a_y / v nearer it): low-passed
+    it moves the wheels by 0.055/21 and the gyro is taken."""
+    seq = _settled(0.045, 0.0, 0.045) + _turning(1, 0.045, 0.0, -0.01) + _turning(10, 0.045, 0.0, 0.045)
+    zs, _ = _voted(seq)
+    assert zs[-1]["bad_samples"] == 0.0
 
 
 def test_a_slide_is_not_outvoted():
@@ -501,28 +536,34 @@ def test_a_slide_is_not_outvoted():
     assert zs[-1]["bad_samples"] == 0.0
 
 
-def test_the_vote_is_off_by_default():
-    """The default guard takes the offset gyro the vote would outvote."""
-    assert S.vote_rate is None
-    z, c = gm.guard(S, gm.initial_state(), {**_inputs(), "yaw_rate": 0.1}, DT, 0.3, NUMPY, track_rear=TRACK)
-    assert c["yaw_rate"] == 0.1 and gm.STATE.as_dict(z)["bad_samples"] == 0.0
+def test_the_vote_is_on_by_default():
+    """The default guard outvotes the offset gyro on a straight road; with ``vote_rate`` None it is taken."""
+    assert S.vote_rate == VOTE.vote_rate
+    seq = _settled(0.0, 0.0, 0.0) + _turning(10, 0.1, 0.0, 0.0)
+    assert _voted(seq, settings=S)[0][-1]["bad_samples"] == 10.0
+    off = gm.GuardSettings(vote_rate=None)
+    assert _voted(seq, settings=off)[0][-1]["bad_samples"] == 0.0
 
 
 def test_without_wheel_sensors_the_vote_holds_on_a_straight_road_only():
     """Without wheel-speed sensors the ECU is given speed / R for both: the wheels' yaw rate is 0. A 0.1 rad/s
     offset on a straight road is outvoted; a steady 4 m/s^2 turn (the gyro and a_y / v agree) is taken."""
-    zs, _ = _voted(_turning(100, 0.1, 0.0, 0.0))
+    zs, _ = _voted(_settled(0.0, 0.0, 0.0) + _turning(100, 0.1, 0.0, 0.0))
     assert zs[-1]["bad_samples"] == 100.0
-    zs, _ = _voted(_turning(100, 4.0 / V, 4.0, 0.0))
+    zs, _ = _voted(_turning(2000, 4.0 / V, 4.0, 0.0))
     assert zs[-1]["bad_samples"] == 0.0
 
 
 @pytest.mark.parametrize("share, out", [(1.0 - 1e-6, True), (1.0 + 1e-6, False)])
 def test_the_vote_starts_only_in_nearly_straight_driving(share, out):
-    """A 0.15 rad/s gyro with the wheels together and a_y at ``share`` of vote_ay (1 m/s^2): below it the two
-    outvote the gyro, from it the vote does not start (at the limit a slipping wheel can side with a_y / v)."""
-    _, cs = _voted(_turning(3, 0.15, share * VOTE.vote_ay, 0.0))
-    assert cs[2]["yaw_rate"] == (pytest.approx(share * VOTE.vote_ay / V) if out else 0.15)
+    """The wheels together, a_y at ``share`` of vote_ay (1 m/s^2), then the gyro at 0.075 and 0.15 rad/s (two steps
+    within the rate test's 0.13 rad/s; at 0.075, a_y / v, 0.06 rad/s, is not nearer the wheels than half the gap):
+    below vote_ay the two outvote the gyro at 0.15, from it the vote does not start (at the limit a slipping
+    wheel can side with a_y / v)."""
+    ay = share * VOTE.vote_ay
+    _, cs = _voted(_settled(0.0, ay, 0.0) + _turning(1, 0.075, ay, 0.0) + _turning(2, 0.15, ay, 0.0))
+    assert cs[-3]["yaw_rate"] == 0.075
+    assert cs[-2]["yaw_rate"] == (pytest.approx(ay / V) if out else 0.15)
 
 
 def _steering(n, steer, driver, law_blend=0.0):

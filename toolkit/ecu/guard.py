@@ -16,12 +16,15 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   ``|a_y - v r|`` exceeds ``consistency_ay + consistency_rate v`` (above ``consistency_speed``) is stuck: it
   fails its check and reads as ``a_y / v`` (a stuck sensor passes every range and rate test, and the law would
   chase the yaw rate it no longer reports);
-* with ``vote_rate`` set (off by default), the yaw rate against the rear wheels and the lateral acceleration,
-  two out of three, while the law is passive: one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by
-  more than ``vote_rate`` and from ``a_y / v`` by more than the consistency band, while ``a_y / v`` is nearer
-  the wheels than half that difference, is offset: it fails its check and reads as ``a_y / v`` (an offset gyro
-  moves like a live one and passes the rate test). The vote rests while the law acts or the motors make a yaw
-  moment: their torque difference makes the rear wheels slip apart;
+* the yaw rate against the rear wheels and the lateral acceleration, two out of three (``vote_rate``; None: no
+  vote), while the car goes nearly straight and the law and the motors have been quiet for ``vote_settle``:
+  one that differs from the wheels' ``(w_rr - w_rl) R / t_r`` by more than ``vote_rate`` and from ``a_y / v`` by
+  more than the consistency band, while ``a_y / v`` is nearer the wheels than half that difference, is offset:
+  it fails its check and reads as ``a_y / v`` (an offset gyro moves like a live one and passes the rate test).
+  The wheels and ``a_y / v`` are low-passed (``vote_tau``: a sample of wheel-speed noise must not outvote a live
+  gyro), the gyro is not (the offset is outvoted on its first sample, before the law starts on the yaw error it
+  makes). The vote rests while the law acts or the motors make a yaw moment: their torque difference makes the
+  rear wheels slip apart;
 * the driver's angle against the road wheels': with the law passive for ``steer_settle`` (a superposition gear
   then adds nothing), ``steer_cmd_driver`` and ``steer`` more than ``steer_agree`` plus ``steer_agree_share`` of
   the angle apart are both replaced by their last good values (an offset on either moves plausibly; which one
@@ -152,14 +155,21 @@ class GuardSettings:
     signal in a steady turn."""
     consistency_speed: float = 5.0
     """[m/s] Below this speed the agreement is not checked (``a_y / v`` says little at walking pace)."""
-    vote_rate: float | None = None
-    """[rad/s] (None: no vote, the default; 0.05 catches a 0.1 rad/s offset, but changes the tuned design of
-    ``evstab design --quick`` on compact-ev: a vote starts in some of its tuning runs.) While the law is
-    passive, a yaw rate that differs from the rear wheels' ``(w_rr - w_rl) R / t_r`` by more than this, and
-    from ``a_y / v`` by more than the consistency band, where ``a_y / v`` is nearer the wheels than half that
-    difference, is offset (a slide separates ``a_y / v`` from the yaw rate by
-    ``beta'``, and the wheels turn with the body; a wheel that slips separates the wheels, not ``a_y``). Without
-    wheel-speed sensors the wheels read a yaw rate of 0: the vote then holds on a straight road only ..."""
+    vote_rate: float | None = 0.05
+    """[rad/s] (None: no vote.) While the law is passive, a yaw rate that differs from the rear wheels'
+    ``(w_rr - w_rl) R / t_r`` by more than this, and from ``a_y / v`` by more than the consistency band, where
+    ``a_y / v`` is nearer the wheels than half that difference, is offset (a slide separates ``a_y / v`` from the
+    yaw rate by ``beta'``, and the wheels turn with the body; a wheel that slips separates the wheels, not
+    ``a_y``). 0.05 outvotes a 0.1 rad/s offset on its first sample. Without wheel-speed sensors the wheels read a
+    yaw rate of 0: the vote then holds on a straight road only ..."""
+    vote_tau: float = 0.02
+    """[s] ... the wheels' yaw rate and ``a_y / v`` taken low-passed with this time constant (first order): a
+    sample of wheel-speed noise must not outvote a live gyro (0.05 rad/s of noise per wheel speed reads as
+    0.014 rad/s of yaw rate, 0.002 low-passed); they lag the gyro by ``vote_tau`` times the yaw acceleration
+    in a transient (0.01 rad/s at 0.5 rad/s^2) ..."""
+    vote_settle: float = 0.2
+    """[s] ... it starts once the law has been passive and the motors' yaw moment within ``vote_yaw_moment`` this
+    long (the low-passed wheels remember the slip a torque difference made) ..."""
     vote_ay: float = 1.0
     """[m/s^2] ... it starts only while the car goes nearly straight (``|a_y|`` below this and the wheels' yaw rate
     below ``vote_rate``: at the limit a wheel that slips can side with ``a_y / v`` against a live gyro) ..."""
@@ -195,7 +205,7 @@ class GuardSettings:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau", "vote_ay", "vote_yaw_moment", "steer_agree_share",
+                  "course_stuck_tau", "vote_tau", "vote_settle", "vote_ay", "vote_yaw_moment", "steer_agree_share",
                   "steer_settle"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
@@ -210,6 +220,10 @@ STATE = Layout("ECU guard state", [
     *[Signal(f"fault_{s}", "-", f"1 while {s} is in fault") for s in _SIGNALS],
     Signal("raw_yaw_rate", "rad/s", "the yaw rate as it came on the last period"),
     Signal("yaw_outvoted", "-", "1 while the rear wheels and the lateral acceleration outvote the yaw rate"),
+    Signal("vote_wheels", "rad/s", "the rear wheels' yaw rate, low-passed with vote_tau"),
+    Signal("vote_kinematic", "rad/s", "a_y / v, low-passed with vote_tau"),
+    Signal("vote_quiet", "s", "time the motors and the law have been quiet for the vote (saturates at twice "
+           "vote_settle)"),
     Signal("passive_time", "s", "time the law has been passive (saturates at twice steer_settle)"),
     Signal("last_course", "rad", "course of the last fix whose course changed"),
     Signal("course_seen", "-", "1 once a fix has been read"),
@@ -302,16 +316,27 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     wheels_ok = (wl >= -WHEEL_SPEED_MAX) * (wl <= WHEEL_SPEED_MAX) * (wr >= -WHEEL_SPEED_MAX) * (wr <= WHEEL_SPEED_MAX)
     if track_rear > 0 and s.vote_rate is not None:
         # two out of three while the law is passive: the gyro far from the wheels' yaw rate and from a_y / v, which
-        # is nearer the wheels than half the gyro's distance from them (an offset gyro)
+        # is nearer the wheels than half the gyro's distance from them (an offset gyro). The wheels and a_y / v
+        # low-passed with vote_tau: a wheel-speed sample's noise (0.05 rad/s per wheel reads 0.014 rad/s of yaw
+        # rate) would outvote a live gyro for a sample; the gyro itself as it comes, so that an offset is seen on
+        # its first sample, before the supervisor starts the law on the yaw error it makes
         r_wheels = (o.if_else(wheels_ok, wr, 0.0) - o.if_else(wheels_ok, wl, 0.0)) * (wheel_radius / track_rear)
-        gap = o.fabs(r_raw - r_wheels)
-        quiet = (o.fabs(clean["yaw_moment_applied"]) <= s.vote_yaw_moment) * passive
-        straight = (o.fabs(clean["ay"]) < s.vote_ay) * (o.fabs(r_wheels) < s.vote_rate)
-        start = quiet * straight * (gap > s.vote_rate) * (o.fabs(clean["ay"] - v * r_wheels) < 0.5 * v * gap)
-        # once outvoted it stays so while it is still half as far from the wheels (a sample of wheel noise
-        # must not let the offset through: the law would start on it, and the vote rests while the law acts)
+        lag = dt_c / (s.vote_tau + dt_c)
+        f_wheels = st["vote_wheels"] + lag * (r_wheels - st["vote_wheels"])
+        f_kin = st["vote_kinematic"] + lag * (clean["ay"] / o.fmax(v, s.consistency_speed) - st["vote_kinematic"])
+        nxt["vote_wheels"], nxt["vote_kinematic"] = f_wheels, f_kin
+        gap = o.fabs(r_raw - f_wheels)  # NaN for a NaN gyro: every comparison below is then false
+        quiet_now = (o.fabs(clean["yaw_moment_applied"]) <= s.vote_yaw_moment) * passive
+        nxt["vote_quiet"] = o.if_else(quiet_now, o.fmin(st["vote_quiet"] + dt_c, 2.0 * s.vote_settle), 0.0)
+        quiet = quiet_now * (st["vote_quiet"] >= s.vote_settle - 0.25 * dt_nominal)
+        straight = (o.fabs(clean["ay"]) < s.vote_ay) * (o.fabs(f_wheels) < s.vote_rate)
+        # the gyro beyond the consistency band from a_y / v
+        apart = (v * o.fabs(f_kin - r_raw) > s.consistency_ay + s.consistency_rate * v) * (v >= s.consistency_speed)
+        start = quiet * straight * (gap > s.vote_rate) * (o.fabs(f_kin - f_wheels) < 0.5 * gap)
+        # once outvoted it stays so while it is still half as far from the wheels (the law would start on the
+        # offset, and the vote rests while the law acts)
         keep = st["yaw_outvoted"] * (gap > 0.5 * s.vote_rate)
-        outvoted = wheels_ok * disagree * o.fmax(start, keep)
+        outvoted = wheels_ok * apart * o.fmax(start, keep)
         nxt["yaw_outvoted"] = outvoted
         stuck = o.fmax(stuck, outvoted)
     oks["yaw_rate"] = oks["yaw_rate"] * (1.0 - stuck)
