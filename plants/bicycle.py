@@ -15,7 +15,7 @@ import numpy as np
 
 from .backend import ops_for, unpack
 from .lti import ContinuousLTI
-from .model import COMMANDS, DISTURBANCES, TRUTH, PlantModel
+from .model import COMMANDS, DISTURBANCES, TRUTH, PlantModel, brake_yaw_moment
 from .params import G, VehicleParams
 from .errors import ModelError
 
@@ -66,10 +66,17 @@ def h(x, u, w, p: VehicleParams):
 
 
 def command_map(cmd, x, p: VehicleParams):
-    """Common commands -> (steer, yaw_moment, vx): the speed reference is the speed."""
+    """Common commands -> (steer, yaw_moment, vx): the speed reference is the speed. The friction
+    brakes add the yaw moment their torques make (:func:`plants.model.brake_yaw_moment`) where the
+    vehicle file gives the tracks and the wheel radius, and nothing otherwise; the speed they take
+    off is not modelled (the speed is the reference)."""
     o = ops_for(cmd, x)
     c = COMMANDS.unpack(cmd)
-    return o.stack([c.steer, c.yaw_moment, c.speed_ref])
+    nz = c.yaw_moment
+    if all(v is not None for v in (p.track_front, p.track_rear, p.wheel_radius)):
+        brakes = [o.fmax(b, 0.0) for b in (c.brake_fl, c.brake_fr, c.brake_rl, c.brake_rr)]
+        nz = nz + brake_yaw_moment(brakes, p.wheel_radius, p.track_front, p.track_rear)
+    return o.stack([c.steer, nz, c.speed_ref])
 
 
 def initial(p: VehicleParams, speed: float):

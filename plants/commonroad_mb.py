@@ -71,6 +71,7 @@ from .commonroad_tire import (_lateral, _lateral_comb, _longitudinal, _longitudi
                               smooth_sign)
 from .errors import ModelError
 from .model import COMMANDS, DISTURBANCES, PlantModel, torque_difference
+from .two_track import BRAKE_LOCK_SHARE, brake_torque
 
 G_MB = 9.81
 """Gravity the package uses [m/s^2] (evstab's :data:`plants.params.G` is 9.80665)."""
@@ -110,10 +111,13 @@ rates and wheel spins do not."""
 STATES = SAE_STATES + ("speed_int",)
 """Plant state: the package's states in ISO 8855 signs, then the speed hold's integral of
 ``v_ref - v_x`` [m]."""
-INPUTS = ("steer_cmd", "steer_rate_cmd", "accel", "torque_rl", "torque_rr", "speed_error")
+INPUTS = ("steer_cmd", "steer_rate_cmd", "accel", "torque_rl", "torque_rr", "speed_error", "brake_fl", "brake_fr",
+          "brake_rl", "brake_rr")
 """Physical inputs: road-wheel angle command [rad] and its rate [rad/s] (the servo's
 reference), the package's longitudinal acceleration input [m/s^2], extra rear wheel torques
-[N m] (the in-wheel motors' yaw part), and the speed error [m/s] the speed hold integrates."""
+[N m] (the in-wheel motors' yaw part), the speed error [m/s] the speed hold integrates, and the
+friction brake torque at each wheel [N m] (evstab's, on top of the package's own brake torque from
+a negative acceleration input)."""
 
 _TIRE = ("p_cx1", "p_dx1", "p_dx3", "p_ex1", "p_kx1", "p_hx1", "p_vx1", "r_bx1", "r_bx2", "r_cx1", "r_ex1",
          "r_hx1", "p_cy1", "p_dy1", "p_dy3", "p_ey1", "p_ky1", "p_hy1", "p_hy3", "p_vy1", "p_vy3", "r_by1",
@@ -183,6 +187,7 @@ def suspension_sae(x, q, o):
 
 def rhs_sae(x, u, q, o, *, steer_rate_max: float, steer_limits: tuple[float, float], accel_limits: tuple,
             mu=(1.0, 1.0, 1.0, 1.0), torque_rear=(0.0, 0.0), ext=(0.0, 0.0, 0.0, 0.0), smooth_camber: bool = True,
+            brakes=(0.0, 0.0, 0.0, 0.0), brake_slope: float = 0.0,
             wheel_floor: float = 0.0, wheel_return: bool = False, fz_floor: float = -math.inf,
             forces: bool = False):
     """``vehicle_dynamics_mb`` ported: state derivative in the package's frame and state order.
@@ -191,7 +196,9 @@ def rhs_sae(x, u, q, o, *, steer_rate_max: float, steer_limits: tuple[float, flo
     takes them (before its constraints), ``q`` a set's :meth:`MBSet.namespace`. evstab's
     additions, each zero/one by default (then this is the package's function, with
     ``smooth_camber=False``): ``mu`` per wheel (LF, RF, LR, RR), extra rear wheel torques
-    ``torque_rear`` (LR, RR) [N m], ``ext`` = (lateral force, yaw moment, roll moment, bank) in
+    ``torque_rear`` (LR, RR) [N m], friction brake torques ``brakes`` (LF, RF, LR, RR) [N m] against each
+    wheel's spin (:func:`plants.two_track.brake_torque` with slope ``brake_slope``),
+    ``ext`` = (lateral force, yaw moment, roll moment, bank) in
     the package's frame; ``wheel_floor`` [m/s] the smallest wheel speed along its heading that
     slips are divided by (the package: 0); ``wheel_return``: a wheel turning backwards is driven back
     to rest in :data:`WHEEL_RETURN_TAU` (the package resets the caller's state to 0 instead; without
@@ -350,6 +357,8 @@ def rhs_sae(x, u, q, o, *, steer_rate_max: float, steer_limits: tuple[float, flo
              1 / q.I_y_w * (-q.R_w * f_x_rf + 0.5 * q.T_sb * t_b + 0.5 * q.T_se * t_e),
              1 / q.I_y_w * (-q.R_w * f_x_lr + 0.5 * (1 - q.T_sb) * t_b + 0.5 * (1 - q.T_se) * t_e + torque_rear[0]),
              1 / q.I_y_w * (-q.R_w * f_x_rr + 0.5 * (1 - q.T_sb) * t_b + 0.5 * (1 - q.T_se) * t_e + torque_rear[1])]
+    for i in range(4):  # evstab's friction brakes (a zero torque adds nothing)
+        wheel[i] = wheel[i] + brake_torque(o, brakes[i], x[23 + i], brake_slope) / q.I_y_w
     # negative wheel spin forbidden: the package holds the derivative at 0 and resets the state to 0
     for i in range(4):
         back = (o.fmax(wheel[i], 0.0) - x[23 + i] / WHEEL_RETURN_TAU) if wheel_return else 0.0 * wheel[i]
@@ -409,6 +418,16 @@ class _Plant:
         s = self.set
         self.kw = dict(steer_rate_max=self.rate, steer_limits=(s.steer_min, s.steer_max),
                        accel_limits=(s.a_max, s.v_switch, s.v_min, s.v_max))
+        self._brake_slope: float | None = None
+
+    @property
+    def brake_slope(self) -> float:
+        """[N m s/rad] The friction brakes' slope against a slow wheel's spin: :data:`BRAKE_LOCK_SHARE` of the
+        stiffest mode's eigenvalue times the wheel's spin inertia, so that RK4 at :func:`max_stable_step` stays
+        stable with a wheel held by its brake (the two-track's rule, :data:`plants.two_track.BRAKE_LOCK_SHARE`)."""
+        if self._brake_slope is None:
+            self._brake_slope = BRAKE_LOCK_SHARE * 2.0 / max_stable_step(self.set.set_id) * self.q.I_y_w
+        return self._brake_slope
 
     def _eval(self, x, u, w, forces=False):
         o = ops_for(x, u, w)
@@ -420,6 +439,7 @@ class _Plant:
         ext = (-d.lateral_force, -d.yaw_moment_dist, d.roll_moment_dist, -d.bank)
         return o, rhs_sae(xs, [-rate_iso, c.accel], self.q, o, mu=(d.mu_fl, d.mu_fr, d.mu_rl, d.mu_rr),
                           torque_rear=(c.torque_rl, c.torque_rr), ext=ext, forces=forces, wheel_floor=WHEEL_FLOOR,
+                          brakes=(c.brake_fl, c.brake_fr, c.brake_rl, c.brake_rr), brake_slope=self.brake_slope,
                           wheel_return=True, fz_floor=FZ_FLOOR, **self.kw)
 
     def f(self, x, u, w, p=None):
@@ -458,7 +478,7 @@ class _Plant:
         err = drive_on * (speed_ref - s.vx + (accel - want) / SPEED_KI)
         accel = drive_on * accel
         t_diff = torque_difference(yaw_moment, self.q.R_w, self.q.T_r)
-        return o.stack([steer, steer_rate, accel, -t_diff, t_diff, err])
+        return o.stack([steer, steer_rate, accel, -t_diff, t_diff, err, c.brake_fl, c.brake_fr, c.brake_rl, c.brake_rr])
 
     def initial(self, p, speed: float):
         """Straight running at ``speed``: the package's ``init_mb``, then the heave, pitch and
@@ -482,6 +502,7 @@ def static_equilibrium(set_id: int, steer_rate_max: float, speed: float) -> np.n
     from scipy.optimize import fsolve
     from vehiclemodels.init_mb import init_mb
     pl = _Plant(set_id, steer_rate_max)
+    pl._brake_slope = 0.0  # brakes released: max_stable_step, which their slope comes from, starts from here
     x0 = np.append(np.asarray(init_mb([0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0], package_parameters(set_id)), float)
                    * SAE_SIGN, 0.0)
     free = [STATES.index(n) for n in ("roll", "pitch", "z", "roll_f", "z_f", "roll_r", "z_r")]
@@ -504,6 +525,7 @@ def static_equilibrium(set_id: int, steer_rate_max: float, speed: float) -> np.n
 
 
 @lru_cache(maxsize=None)
+@lru_cache(maxsize=None)
 def max_stable_step(set_id: int) -> float:
     """Largest RK4 step [s] for the stiffest mode, from the Jacobian's eigenvalues.
 
@@ -515,6 +537,7 @@ def max_stable_step(set_id: int) -> float:
     """
     import casadi as ca
     pl = _Plant(set_id, STEER_RATE_DEFAULT)
+    pl._brake_slope = 0.0  # the brakes released (their slope is derived from this step)
     xs = ca.SX.sym("x", len(STATES))
     u = ca.DM.zeros(len(INPUTS))
     w = ca.DM([0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])

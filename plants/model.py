@@ -26,11 +26,15 @@ COMMANDS = Layout("plant commands", [
     Signal("speed_ref", "m/s", "speed reference"),
     Signal("drive_on", "-", "1 = hold speed with drive torque, 0 = coast"),
     Signal("steer_rate", "rad/s", "rate of the road-wheel angle command"),
+    *(Signal(f"brake_{c}", "N m", f"friction brake torque at the {c} wheel (>= 0; opposes its spin)", default=0.0)
+      for c in ("fl", "fr", "rl", "rr")),
 ])
 """Common commands every plant accepts (front road-wheel angle [rad], direct yaw
 moment [N m], speed reference [m/s], 1 = hold speed with drive torque / 0 = coast,
 rate of the road-wheel angle command [rad/s]: the feed-forward of a plant with a
-steering servo; plants that take the angle directly ignore it)."""
+steering servo; plants that take the angle directly ignore it), and the friction brake torque at
+each wheel [N m] (0 when not given; a negative one counts as 0; it opposes the wheel's spin and
+never drives a wheel backwards: see each plant)."""
 
 DISTURBANCES = Layout("disturbances", [
     Signal("lateral_force", "N", "lateral force at the CG"),
@@ -63,6 +67,16 @@ def torque_difference(yaw_moment, wheel_radius, track_rear):
     ``T / R_w`` at the contact patch, ``t_r / 2`` from the centre line). The one torque split of
     the plants, the actuators and the ECU."""
     return yaw_moment * wheel_radius / track_rear
+
+
+def brake_yaw_moment(brakes, wheel_radius, track_front, track_rear):
+    """The yaw moment [N m] the friction brake torques ``(fl, fr, rl, rr)`` [N m] make on a car going
+    forward at small slip angles: a brake torque ``T`` is a force ``-T / R_w`` at the contact patch,
+    ``+-t / 2`` from the centre line (left positive, ISO 8855), so braking a left wheel turns the car
+    left: ``N_z = ((T_fl - T_fr) t_f + (T_rl - T_rr) t_r) / (2 R_w)`` (the motors' rule,
+    :func:`torque_difference`, with the sign of a brake)."""
+    fl, fr, rl, rr = brakes
+    return ((fl - fr) * track_front + (rl - rr) * track_rear) / (2.0 * wheel_radius)
 
 
 def yaw_moment_of(torque_diff, wheel_radius, track_rear):

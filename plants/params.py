@@ -129,6 +129,19 @@ class VehicleParams:
     max_motor_torque: float | None = _field("peak torque of one rear in-wheel motor at the wheel [N m]",
                                             0.0, 1e5, default=None)
 
+    # Optional: friction brakes at every wheel (hydraulic; controllers.brakes).
+    brake_gain_front: float | None = _field("brake torque per unit pressure at ONE front wheel [N m/Pa]", 0.0, 1e-2,
+                                            default=None)
+    brake_gain_rear: float | None = _field("brake torque per unit pressure at ONE rear wheel [N m/Pa]", 0.0, 1e-2,
+                                           default=None)
+    brake_pressure_max: float | None = _field("largest wheel-brake pressure the hydraulic unit makes [Pa]", 0.0, 1e8,
+                                              default=None)
+    brake_tau: float | None = _field("time constant of a wheel brake's pressure [s]", 0.0, 1.0, default=None)
+    brake_build_rate: float | None = _field("fastest pressure build-up at one wheel brake [Pa/s]", 0.0, 1e10,
+                                            default=None)
+    brake_release_rate: float | None = _field("fastest pressure release at one wheel brake [Pa/s]", 0.0, 1e10,
+                                              default=None)
+
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)

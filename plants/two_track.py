@@ -38,7 +38,8 @@ from .tires import combined_forces
 
 STATES = ("vx", "vy", "yaw_rate", "roll", "roll_rate",
           "omega_fl", "omega_fr", "omega_rl", "omega_rr", "yaw", "x", "y", "ax_f", "ay_f")
-INPUTS = ("steer", "torque_fl", "torque_fr", "torque_rl", "torque_rr")
+INPUTS = ("steer", "torque_fl", "torque_fr", "torque_rl", "torque_rr", "brake_fl", "brake_fr", "brake_rl",
+          "brake_rr")
 REQUIRED = ("sprung_mass", "roll_inertia", "roll_damping", "roll_stiffness", "roll_arm", "cg_height",
             "track_front", "track_rear", "wheel_radius", "wheel_inertia", "longitudinal_stiffness")
 
@@ -46,6 +47,13 @@ V_LOW = 2.5
 """Slip reference-speed floor [m/s]: slips are divided by a smooth ``max(|v|, V_LOW)``."""
 V_BLEND = 0.5
 """Width [m/s] of the smooth max; above ``V_LOW + 4 V_BLEND`` the reference speed is |v| to < 0.4 %."""
+BRAKE_LOCK_SHARE = 0.35
+"""The friction brake's torque against a slow wheel, ``T_b tanh(k omega / T_b)``, rises with slope ``k`` =
+this share of the tyre's own spin stiffness at :data:`V_LOW` (``C_kappa R_w^2 / V_LOW``): the sum of the two
+stays inside the RK4 step :func:`max_stable_step` allows (2.0 / lambda of the tyre alone, RK4's bound 2.78).
+A wheel braked beyond its tyre's grip therefore does not stop dead: it creeps forward at ``omega = (T_b / k)
+atanh(F_x R_w / T_b)``, a few rad/s (:func:`brake_lock_slope`), and never turns backwards (the brake's torque
+vanishes with the spin)."""
 LOAD_TRANSFER_TAU = 0.05
 """Time constant [s] of the accelerations that drive load transfer."""
 FZ_MIN = 50.0
@@ -122,14 +130,32 @@ def _accelerations(x, u, w, p: VehicleParams):
     return o, s, c, fz, fxw, ax, ay, roll_acc, yaw_acc
 
 
+def brake_lock_slope(p: VehicleParams) -> float:
+    """[N m s/rad] The slope ``k`` of a friction brake's torque against the spin of a slow wheel
+    (:data:`BRAKE_LOCK_SHARE` of ``C_kappa R_w^2 / V_LOW``)."""
+    c_kappa, r_w = known(p, "longitudinal_stiffness", "wheel_radius")
+    return BRAKE_LOCK_SHARE * c_kappa * r_w**2 / V_LOW
+
+
+def brake_torque(o, brake, omega, slope):
+    """The torque [N m] a friction brake asked for ``brake`` (>= 0; below 0 counts as 0) puts on a wheel
+    spinning at ``omega`` [rad/s], signed as a drive torque: ``-T_b tanh(k omega / T_b)`` (the full torque
+    against the spin beyond a few rad/s, nothing at a standstill; ``slope`` = k, :func:`brake_lock_slope`)."""
+    t_b = o.fmax(brake, 0.0)
+    return -t_b * o.tanh(slope * omega / o.fmax(t_b, 1.0))
+
+
 def f(x, u, w, p: VehicleParams):
     """State derivative of the two-track model."""
     o, s, c, fz, fxw, ax, ay, roll_acc, yaw_acc = _accelerations(x, u, w, p)
     torques = (c.torque_fl, c.torque_fr, c.torque_rl, c.torque_rr)
+    brakes = (c.brake_fl, c.brake_fr, c.brake_rl, c.brake_rr)
     omegas = (s.omega_fl, s.omega_fr, s.omega_rl, s.omega_rr)
     R = p.wheel_radius
+    k = brake_lock_slope(p)
     wheel_acc = [(torques[i] - fxw[i] * R
-                  - p.rolling_resistance * fz[i] * R * o.tanh(omegas[i] * R / 0.1)) / p.wheel_inertia
+                  - p.rolling_resistance * fz[i] * R * o.tanh(omegas[i] * R / 0.1)
+                  + brake_torque(o, brakes[i], omegas[i], k)) / p.wheel_inertia
                  for i in range(4)]
     vx_dot = ax + s.vy * s.yaw_rate
     vy_dot = ay - s.vx * s.yaw_rate
@@ -160,7 +186,8 @@ def command_map(cmd, x, p: VehicleParams):
     ``M k (v_ref - v_x)`` plus the resistances, made by the two rear in-wheel
     motors; the direct yaw moment is the motor torque difference
     ``N_z = (T_rr - T_rl) t_r / (2 R_w)``. Per-wheel limits ``max_motor_torque``
-    apply when set. Front wheels carry no torque.
+    apply when set. Front wheels carry no drive torque. The friction brake torques pass through
+    (:func:`brake_torque` applies them against each wheel's spin).
     """
     o = ops_for(cmd, x)
     s = unpack(x, STATES)
@@ -176,7 +203,7 @@ def command_map(cmd, x, p: VehicleParams):
         lim = p.max_motor_torque
         t_rl, t_rr = o.fmin(o.fmax(t_rl, -lim), lim), o.fmin(o.fmax(t_rr, -lim), lim)
     zero = 0.0 * steer
-    return o.stack([steer, zero, zero, t_rl, t_rr])
+    return o.stack([steer, zero, zero, t_rl, t_rr, c.brake_fl, c.brake_fr, c.brake_rl, c.brake_rr])
 
 
 def initial(p: VehicleParams, speed: float):
