@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
-from evstab.plants import DISTURBANCES, ModelError, bicycle, default_disturbance, get_plant, load_vehicle
+from evstab.plants import COMMANDS, DISTURBANCES, ModelError, bicycle, default_disturbance, get_plant, load_vehicle
 from evstab.plants.lti import ContinuousLTI
 
 SPEEDS = (5.0, 15.0, 30.0)
@@ -144,8 +144,9 @@ def test_numpy_and_casadi_agree(vehicle, plant, rng):
     F = ca.Function("f", [xs, us, ws], [model.f(xs, us, ws, vehicle), model.h(xs, us, ws, vehicle)])
     for _ in range(20):
         x = model.initial_state(vehicle, 15.0) + 0.05 * rng.standard_normal(nx)
-        u = model.command_map(np.array([0.05 * rng.standard_normal(), 200 * rng.standard_normal(), 15.0, 1.0, 0.1 * rng.standard_normal()]),
-                              x, vehicle)
+        u = model.command_map(COMMANDS.pack(steer=0.05 * rng.standard_normal(), yaw_moment=200 * rng.standard_normal(),
+                                            speed_ref=15.0, drive_on=1.0, steer_rate=0.1 * rng.standard_normal(),
+                                            brake_fl=300 * rng.random(), brake_rr=300 * rng.random()), x, vehicle)
         w = default_disturbance(0.8) + np.r_[100 * rng.standard_normal(3), 0.02 * rng.standard_normal(), 0, 0, 0, 0]
         fx, hx = F(x, u, w)
         # same expression evaluated two ways: only floating-point rounding differs
@@ -158,7 +159,7 @@ def test_batched_numpy_evaluation(compact, plant, rng):
     model = get_plant(plant)
     nx = len(model.states)
     X = model.initial_state(compact, 15.0)[:, None] + 0.01 * rng.standard_normal((nx, 7))
-    cmd = np.array([0.02, 0.0, 15.0, 1.0, 0.0])
+    cmd = COMMANDS.pack(steer=0.02, yaw_moment=0.0, speed_ref=15.0, drive_on=1.0, steer_rate=0.0, brake_fr=200.0)
     cols = [model.f(X[:, j], model.command_map(cmd, X[:, j], compact), default_disturbance(), compact)
             for j in range(7)]
     U = model.command_map(np.repeat(cmd[:, None], 7, axis=1), X, compact)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from evstab.plants import TRUTH, commonroad_mb as mb, default_disturbance, get_plant, load_vehicle
+from evstab.plants import COMMANDS, TRUTH, commonroad_mb as mb, default_disturbance, get_plant, load_vehicle
 from evstab.plants.backend import CASADI, NUMPY
 from evstab.plants.errors import ModelError
 from evstab.plants.maneuvers import step_steer
@@ -157,10 +157,9 @@ def test_iso_signs(set_id):
     assert r.truth["y"][-1] > 0.0  # and the car went left in the earth frame
     model = get_plant(f"commonroad-mb:{set_id}")
     x = model.initial_state(p, 20.0)
-    cmd = np.array([0.0, 500.0, 20.0, 1.0, 0.0])  # +500 N m of yaw moment: T_rr > T_rl
+    cmd = COMMANDS.pack(steer=0.0, yaw_moment=500.0, speed_ref=20.0, drive_on=1.0, steer_rate=0.0)  # T_rr > T_rl
     u = model.command_map(cmd, x, p)
     assert u[mb.INPUTS.index("torque_rr")] > 0 > u[mb.INPUTS.index("torque_rl")]
-    from evstab.plants import COMMANDS
     from evstab.toolkit.kernels.compiled import compiled_plant
     n = 1000
     C = np.repeat(cmd[:, None], n, axis=1)

@@ -155,7 +155,7 @@ def test_vertical_loads_sum_to_weight(compact):
     x = model.initial_state(compact, 20.0)
     x[model.state_index("ay_f")] = 5.0
     x[model.state_index("ax_f")] = -2.0
-    fz = two_track.vertical_loads(x, np.zeros(5), default_disturbance(), compact)
+    fz = two_track.vertical_loads(x, np.zeros(len(two_track.INPUTS)), default_disturbance(), compact)
     # smoothing adds < 1 N per wheel at these loads (FZ_MIN^2 / (4 F_z))
     assert sum(fz) == pytest.approx(compact.mass * G, abs=1.0)
     assert fz[1] > fz[0] and fz[3] > fz[2]  # left turn loads the right wheels

@@ -109,7 +109,7 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
     tau = ca.collocation_points(RADAU_POINTS, "radau")
     C, D, _ = ca.collocation_coeff(tau)  # the interpolant through the step's start and points: slopes, end value
     nx = len(two_track.STATES)
-    xs, us, ws = ca.SX.sym("x", nx), ca.SX.sym("u", 5), ca.SX.sym("w", len(DISTURBANCES))
+    xs, us, ws = ca.SX.sym("x", nx), ca.SX.sym("u", len(two_track.INPUTS)), ca.SX.sym("w", len(DISTURBANCES))
     f = ca.Function("f", [xs, us, ws], [two_track.f(xs, us, ws, p)])
     cs = ca.SX.sym("c", len(COMMANDS))
     hold = ca.Function("hold", [cs, xs], [two_track.command_map(cs, xs, p)])
@@ -143,7 +143,7 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
             tj = t[k] + tau[j] * step
             if free:
                 steer = float(man.steer(np.array([tj]))[0]) + corr[k] + tau[j] * step * rate[k]
-                u = ca.vertcat(steer, 0.0, 0.0, tm * torque[0, k], tm * torque[1, k])
+                u = ca.vertcat(steer, 0.0, 0.0, tm * torque[0, k], tm * torque[1, k], 0.0, 0.0, 0.0, 0.0)  # no brake
             else:
                 u = hold(_driver_command(man, tj), xc[:, j])
             # the road just inside the step: a change at a grid time (the friction drop) starts the next step
