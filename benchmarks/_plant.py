@@ -83,8 +83,9 @@ def plant_inputs(spec: cl.LoopSpec, U: np.ndarray, z0: np.ndarray, E: np.ndarray
                 share = E[c, :, ex("drive_share")]  # holds it (1 less the cut it stores), this one's
                 u[c, :, k] = cols[name] * (1.0 - np.concatenate([[0.0], 1.0 - share[:-1]]))
                 u[c, :, nc + k] = cols[name] * share
-            else:  # speed_ref: this sample's, in both
+            elif name == "speed_ref":  # this sample's, in both
                 u[c, :, k] = u[c, :, nc + k] = cols[name]
+            # the brakes: the loop applies none (zero, as u starts)
         u[c, :, 2 * nc:] = cols["disturbances"]
     return z0[:, spec.state_layout.slot("plant")].copy(), u
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 from evstab.plants import G
 from evstab.plants.backend import NUMPY
+from evstab.plants.errors import SettingsError
 
 MODES = ("motors", "brakes", "blend")
 
@@ -72,15 +73,15 @@ class AllocationDesign:
 
     def __post_init__(self):
         if self.mode not in MODES:
-            raise ValueError(f"allocation mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+            raise SettingsError(f"allocation mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for k in ("mass", "cg_height", "track_front", "track_rear", "wheel_radius", "brake_gain_front",
                   "brake_gain_rear", "brake_pressure_max", "torque_max", "axle_blend", "slip_max", "slip_speed"):
             if not getattr(self, k) > 0:
-                raise ValueError(f"allocation setting '{k}' must be > 0, got {getattr(self, k)!r}")
+                raise SettingsError(f"allocation setting '{k}' must be > 0, got {getattr(self, k)!r}")
         if not 0.0 <= self.motor_share <= 1.0:
-            raise ValueError(f"allocation setting 'motor_share' must be within [0, 1], got {self.motor_share!r}")
+            raise SettingsError(f"allocation setting 'motor_share' must be within [0, 1], got {self.motor_share!r}")
         if not 0.0 < self.slip_onset < 1.0:
-            raise ValueError(f"allocation setting 'slip_onset' must be within (0, 1), got {self.slip_onset!r}")
+            raise SettingsError(f"allocation setting 'slip_onset' must be within (0, 1), got {self.slip_onset!r}")
 
     @property
     def gains(self) -> tuple[float, float, float, float]:

@@ -199,7 +199,7 @@ def replay(r: Reachable, case: Case, p: VehicleParams, *, rtol: float = 1e-9, at
         def rhs(t, x, k=k, t0=t0, t1=t1, rate=rate, free=free):
             if free:
                 steer = float(man.steer(np.array([t]))[0]) + r.correction[k] + (t - t0) * rate
-                u = np.array([steer, 0.0, 0.0, r.torques[0, k], r.torques[1, k]])
+                u = np.array([steer, 0.0, 0.0, r.torques[0, k], r.torques[1, k], 0.0, 0.0, 0.0, 0.0])  # no brake
             else:
                 u = np.asarray(two_track.command_map(np.asarray(_driver_command(man, t), float), x, p), float)
             return np.asarray(two_track.f(x, u, _road(road, min(t, t1 - 1e-6 * (t1 - t0))), p), float)
