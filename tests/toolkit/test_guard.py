@@ -566,46 +566,6 @@ def test_the_vote_starts_only_in_nearly_straight_driving(share, out):
     assert cs[-2]["yaw_rate"] == (pytest.approx(ay / V) if out else 0.15)
 
 
-def _offset_wheel(seq, side, d_omega):
-    """``seq`` with ``d_omega`` [rad/s] added to the ``side`` rear wheel's speed."""
-    for u in seq:
-        u[f"wheel_speed_{side}"] = u[f"wheel_speed_{side}"] + d_omega
-    return seq
-
-
-@pytest.mark.parametrize("share, out", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
-def test_the_gyro_and_the_accelerometer_outvote_an_offset_wheel_speed(share, out):
-    """Straight road at 16.7 m/s, then the left rear wheel offset so that the wheels read ``share`` of wheel_rate
-    (0.2 rad/s) of yaw rate, for 1,000 periods (the low-passed wheels within 6e-22 of it): the wheel is then
-    ``share`` of wheel_rate x t_r (0.3 m/s) further from the speed than the other. Beyond, it reads speed / R and
-    is named (bit 9) 50 ms on; inside, it is taken."""
-    d_omega = share * VOTE.wheel_rate * TRACK / 0.3
-    seq = _settled(0.0, 0.0, 0.0) + _offset_wheel(_turning(SETTLE, 0.0, 0.0, 0.0, k0=SETTLE), "rl", d_omega)
-    zs, cs = _voted(seq)
-    assert cs[-1]["wheel_speed_rl"] == (V / 0.3 if out else V / 0.3 + d_omega)
-    assert cs[-1]["wheel_speed_rr"] == V / 0.3
-    assert zs[-1]["fault_word"] == (2.0 ** 9 if out else 0.0)
-    assert zs[-1]["bad_samples"] == 0.0 or out
-
-
-def test_the_wheel_named_is_the_one_further_from_the_speed():
-    """The right rear wheel 10 rad/s slow: it is the one read as speed / R and named (bit 10); the left is taken."""
-    seq = _settled(0.0, 0.0, 0.0) + _offset_wheel(_turning(200, 0.0, 0.0, 0.0, k0=SETTLE), "rr", -10.0)
-    zs, cs = _voted(seq)
-    assert cs[-1]["wheel_speed_rr"] == V / 0.3 and cs[-1]["wheel_speed_rl"] == V / 0.3
-    assert zs[-1]["fault_word"] == 2.0 ** 10
-
-
-def test_wheels_in_a_turn_or_a_slide_are_not_outvoted():
-    """A steady turn (gyro, wheels and a_y / v at 0.3 rad/s): the wheels agree. A slide (gyro at 0.3, a_y 1 m/s^2:
-    the gyro itself beyond the accelerometer's band) with the wheels at 0: nothing is outvoted by a gyro that a_y
-    does not back."""
-    zs, _ = _voted(_turning(2000, 0.3, 0.3 * V, 0.3))
-    assert zs[-1]["bad_samples"] == 0.0
-    zs, _ = _voted(_turning(2000, 0.3, 1.0, 0.0))
-    assert zs[-1]["fault_word"] == 0.0
-
-
 def _steering(n, steer, driver, law_blend=0.0):
     """``n`` periods at 16.7 m/s with the road-wheel angle ``steer(k)`` and the driver's ``driver(k)``, the law's
     authority ``law_blend`` throughout."""

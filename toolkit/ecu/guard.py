@@ -24,9 +24,7 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   The wheels and ``a_y / v`` are low-passed (``vote_tau``: a sample of wheel-speed noise must not outvote a live
   gyro), the gyro is not (the offset is outvoted on its first sample, before the law starts on the yaw error it
   makes). The vote rests while the law acts or the motors make a yaw moment: their torque difference makes the
-  rear wheels slip apart. Under the same conditions, a gyro that agrees with ``a_y / v`` outvotes the rear wheels
-  when their yaw rate is more than ``wheel_rate`` from it: the wheel further from the speed is wrong (an offset
-  wheel speed), read as ``speed / R`` and named;
+  rear wheels slip apart;
 * the driver's angle against the road wheels': with the law passive for ``steer_settle`` (a superposition gear
   then adds nothing), ``steer_cmd_driver`` and ``steer`` more than ``steer_agree`` plus ``steer_agree_share`` of
   the angle apart are both replaced by their last good values (an offset on either moves plausibly; which one
@@ -172,13 +170,6 @@ class GuardSettings:
     vote_settle: float = 0.2
     """[s] ... it starts once the law has been passive and the motors' yaw moment within ``vote_yaw_moment`` this
     long (the low-passed wheels remember the slip a torque difference made) ..."""
-    wheel_rate: float = 0.2
-    """[rad/s] ... and the rear wheels against the two: while the vote may start (the law and the motors quiet)
-    and the gyro agrees with ``a_y / v``, the wheels' low-passed yaw rate more than this from the gyro's says
-    that a rear wheel speed is wrong (a 10 rad/s offset on one reads 2 rad/s on compact-ev; a tyre's slip with
-    the motors quiet, a few hundredths): the one further from the speed, by more than ``wheel_rate t_r`` (a turn
-    moves both equally far; without wheel-speed sensors both read ``speed / R``), is replaced by ``speed / R``
-    and named ..."""
     vote_ay: float = 1.0
     """[m/s^2] ... it starts only while the car goes nearly straight (``|a_y|`` below this and the wheels' yaw rate
     below ``vote_rate``: at the limit a wheel that slips can side with ``a_y / v`` against a live gyro) ..."""
@@ -214,7 +205,7 @@ class GuardSettings:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau", "vote_tau", "vote_settle", "wheel_rate", "vote_ay", "vote_yaw_moment", "steer_agree_share",
+                  "course_stuck_tau", "vote_tau", "vote_settle", "vote_ay", "vote_yaw_moment", "steer_agree_share",
                   "steer_settle"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
@@ -348,11 +339,6 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         outvoted = wheels_ok * apart * o.fmax(start, keep)
         nxt["yaw_outvoted"] = outvoted
         stuck = o.fmax(stuck, outvoted)
-        # the rear wheels outvoted by the gyro and a_y / v, which agree: one wheel speed is wrong
-        wheels_out = wheels_ok * quiet * (v >= s.consistency_speed) * (1.0 - apart) * \
-            (o.fabs(f_wheels - r_raw) > s.wheel_rate)
-    else:
-        wheels_out = 0.0 * v
     oks["yaw_rate"] = oks["yaw_rate"] * (1.0 - stuck)
     # a stuck yaw rate reads as the one the lateral acceleration gives (a_y / v: the car's velocity turns with its
     # body while it does not slide; the last good value of a stuck sensor is the stuck value); any other sample
@@ -392,15 +378,9 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     mu_ok = (g["mu"] >= 0.0) * (g["mu"] <= MU_NO_SENSOR)
     clean["mu"] = o.if_else(mu_ok, g["mu"], MU_NO_SENSOR)
     bad["mu"] = 1.0 - mu_ok
-    # of two rear wheels the gyro and a_y / v outvote, the one further from the speed (by as much as the wheels'
-    # yaw rate is off: a turn moves both wheels equally far from it, and without wheel-speed sensors both are
-    # speed / R) is wrong
-    dev = {side: o.fabs(g[f"wheel_speed_{side}"] * wheel_radius - clean["speed"]) for side in ("rl", "rr")}
-    far = s.wheel_rate * track_rear
-    wrong = {"rl": wheels_out * (dev["rl"] - dev["rr"] > far), "rr": wheels_out * (dev["rr"] - dev["rl"] > far)}
     for side in ("rl", "rr"):
         w = g[f"wheel_speed_{side}"]
-        w_ok = (w >= -WHEEL_SPEED_MAX) * (w <= WHEEL_SPEED_MAX) * (1.0 - wrong[side])
+        w_ok = (w >= -WHEEL_SPEED_MAX) * (w <= WHEEL_SPEED_MAX)
         clean[f"wheel_speed_{side}"] = o.if_else(w_ok, w, clean["speed"] / wheel_radius)
         bad[f"wheel_speed_{side}"] = 1.0 - w_ok
     words = []
