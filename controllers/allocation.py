@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from evstab.plants import G
 from evstab.plants.backend import NUMPY
 from evstab.plants.errors import SettingsError
+from evstab.plants.model import brake_yaw_moment
 
 MODES = ("motors", "brakes", "blend")
 
@@ -146,21 +147,18 @@ def allocate(d: AllocationDesign, nz, yaw_rate, speed, ay, mu, omegas, p_driver,
     each wheel (FL, FR, RL, RR) [Pa], and the yaw moment the brakes' controller pressures make before the slip
     limiter (what the grip and the hydraulic unit let through).
     """
-    cap = d.motor_yaw_capacity
     if d.mode == "motors":
         nz_m = nz
     elif d.mode == "brakes":
         nz_m = 0.0 * nz
     else:
-        share = d.motor_share * cap
+        share = d.motor_share * d.motor_yaw_capacity
         nz_m = o.fmin(o.fmax(nz, -share), share)
-    nz_b = 0.0 * nz if d.mode == "motors" else nz - nz_m
-    wanted = brake_moments(d, nz_b, yaw_rate, o)
+    wanted = brake_moments(d, nz - nz_m, yaw_rate, o)
     grip = wheel_grip(d, mu, ay, o)
     gains = d.gains
     torques = [o.fmin(wanted[i], o.fmin(grip[i], d.brake_pressure_max * gains[i])) for i in range(4)]
-    made = ((torques[0] - torques[1]) * d.track_front + (torques[2] - torques[3]) * d.track_rear) / \
-        (2.0 * d.wheel_radius)
+    made = brake_yaw_moment(torques, d.wheel_radius, d.track_front, d.track_rear)
     p_drv = o.fmax(p_driver, 0.0)
     pressures = tuple(slip_limit(d, o.fmin(p_drv + torques[i] / gains[i], d.brake_pressure_max), omegas[i], speed, o)
                       for i in range(4))

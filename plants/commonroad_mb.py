@@ -411,20 +411,21 @@ def _iso_to_sae(x):
 class _Plant:
     """The closures of one ``commonroad-mb`` plant (set and steering-rate limit fixed)."""
 
-    def __init__(self, set_id: int, steer_rate_max: float):
+    def __init__(self, set_id: int, steer_rate_max: float, brake_slope: float | None = None):
         self.set = mb_set(set_id)
         self.q = self.set.namespace()
         self.rate = float(steer_rate_max)
         s = self.set
         self.kw = dict(steer_rate_max=self.rate, steer_limits=(s.steer_min, s.steer_max),
                        accel_limits=(s.a_max, s.v_switch, s.v_min, s.v_max))
-        self._brake_slope: float | None = None
+        self._brake_slope = brake_slope
 
     @property
     def brake_slope(self) -> float:
         """[N m s/rad] The friction brakes' slope against a slow wheel's spin: :data:`BRAKE_LOCK_SHARE` of the
         stiffest mode's eigenvalue times the wheel's spin inertia, so that RK4 at :func:`max_stable_step` stays
-        stable with a wheel held by its brake (the two-track's rule, :data:`plants.two_track.BRAKE_LOCK_SHARE`)."""
+        stable with a wheel held by its brake (the two-track's rule, :data:`plants.two_track.BRAKE_LOCK_SHARE`).
+        Given to the constructor (0: the brakes released) where the plant is built to find that step."""
         if self._brake_slope is None:
             self._brake_slope = BRAKE_LOCK_SHARE * 2.0 / max_stable_step(self.set.set_id) * self.q.I_y_w
         return self._brake_slope
@@ -501,8 +502,7 @@ def static_equilibrium(set_id: int, steer_rate_max: float, speed: float) -> np.n
     """
     from scipy.optimize import fsolve
     from vehiclemodels.init_mb import init_mb
-    pl = _Plant(set_id, steer_rate_max)
-    pl._brake_slope = 0.0  # brakes released: max_stable_step, which their slope comes from, starts from here
+    pl = _Plant(set_id, steer_rate_max, brake_slope=0.0)  # max_stable_step, the slope's source, starts here
     x0 = np.append(np.asarray(init_mb([0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0], package_parameters(set_id)), float)
                    * SAE_SIGN, 0.0)
     free = [STATES.index(n) for n in ("roll", "pitch", "z", "roll_f", "z_f", "roll_r", "z_r")]
@@ -525,7 +525,6 @@ def static_equilibrium(set_id: int, steer_rate_max: float, speed: float) -> np.n
 
 
 @lru_cache(maxsize=None)
-@lru_cache(maxsize=None)
 def max_stable_step(set_id: int) -> float:
     """Largest RK4 step [s] for the stiffest mode, from the Jacobian's eigenvalues.
 
@@ -536,8 +535,7 @@ def max_stable_step(set_id: int) -> float:
     ``h = 2.0 / max |lambda|`` keeps a margin.
     """
     import casadi as ca
-    pl = _Plant(set_id, STEER_RATE_DEFAULT)
-    pl._brake_slope = 0.0  # the brakes released (their slope is derived from this step)
+    pl = _Plant(set_id, STEER_RATE_DEFAULT, brake_slope=0.0)  # the brakes' slope is derived from this step
     xs = ca.SX.sym("x", len(STATES))
     u = ca.DM.zeros(len(INPUTS))
     w = ca.DM([0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])

@@ -77,6 +77,13 @@ def _road(road, t: float) -> np.ndarray:
     return disturbance_profile(road, np.array([t]))[:, 0]
 
 
+def _free_inputs(steer, t_rl, t_rr) -> list:
+    """The two-track's physical inputs (:data:`plants.two_track.INPUTS`) of a searched step: the road-wheel
+    angle and the rear motors' torques; no front torque, no brake."""
+    given = {"steer": steer, "torque_rl": t_rl, "torque_rr": t_rr}
+    return [given.get(name, 0.0) for name in two_track.INPUTS]
+
+
 def _driver_command(man, t: float):
     """The car alone's commands (:data:`plants.model.COMMANDS`) at time ``t``: the driver's steer and speed hold."""
     at = np.array([t])
@@ -143,7 +150,7 @@ def search(case: Case, p: VehicleParams, *, start: float, react: float, end: flo
             tj = t[k] + tau[j] * step
             if free:
                 steer = float(man.steer(np.array([tj]))[0]) + corr[k] + tau[j] * step * rate[k]
-                u = ca.vertcat(steer, 0.0, 0.0, tm * torque[0, k], tm * torque[1, k], 0.0, 0.0, 0.0, 0.0)  # no brake
+                u = ca.vertcat(*_free_inputs(steer, tm * torque[0, k], tm * torque[1, k]))
             else:
                 u = hold(_driver_command(man, tj), xc[:, j])
             # the road just inside the step: a change at a grid time (the friction drop) starts the next step
@@ -199,7 +206,7 @@ def replay(r: Reachable, case: Case, p: VehicleParams, *, rtol: float = 1e-9, at
         def rhs(t, x, k=k, t0=t0, t1=t1, rate=rate, free=free):
             if free:
                 steer = float(man.steer(np.array([t]))[0]) + r.correction[k] + (t - t0) * rate
-                u = np.array([steer, 0.0, 0.0, r.torques[0, k], r.torques[1, k], 0.0, 0.0, 0.0, 0.0])  # no brake
+                u = np.array(_free_inputs(steer, r.torques[0, k], r.torques[1, k]))
             else:
                 u = np.asarray(two_track.command_map(np.asarray(_driver_command(man, t), float), x, p), float)
             return np.asarray(two_track.f(x, u, _road(road, min(t, t1 - 1e-6 * (t1 - t0))), p), float)
