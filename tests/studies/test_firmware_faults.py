@@ -71,3 +71,42 @@ def test_the_fault_tables_verdict(straight, lane, verdict):
     assert t["verdict"] == verdict
     # the worst over the runs: 2.5 - 2.0 and 2.5 - 2.4
     assert (t["excess"], t["by_fault"]) == pytest.approx((0.5, 0.1))
+
+
+def test_command_peaks_by_hand():
+    """Periods 0-3 (1 ms), from 0.002 s on: corrections 2 and -1 deg of steer, yaw moments 300 and -500 N m; the
+    largest of each, and the largest change from one period to the next within the span (3 deg, 800 N m)."""
+    import numpy as np
+    from evstab.studies.firmware_faults import command_peaks
+    t = np.array([0.0, 0.001, 0.002, 0.003])
+    driver = np.radians([1.0, 1.0, 1.0, 1.0])
+    steer = np.radians([9.0, 9.0, 3.0, 0.0])
+    nz = np.array([5000.0, 5000.0, 300.0, -500.0])
+    assert command_peaks(t, steer, driver, nz, 0.002) == pytest.approx([2.0, 500.0, 3.0, 800.0], rel=1e-12)
+    assert command_peaks(t, steer, driver, nz) == pytest.approx([8.0, 5000.0, 6.0, 4700.0], rel=1e-12)
+
+
+@pytest.mark.parametrize("reset, spike", [((2.0, 500.0, 3.0, 800.0), False),
+                                          ((2.0, 500.0, 3.0, 800.0 * (1 + 1e-6)), True),
+                                          ((2.0 * (1 + 1e-6), 500.0, 3.0, 800.0), True),
+                                          ((2.0, float("nan"), 3.0, 800.0), True)])
+def test_no_spike_at_its_boundary(reset, spike):
+    """Each of a reset's peaks at most the never-reset ECU's (2 deg, 500 N m, 3 deg, 800 N m): equal is no spike;
+    1e-6 above (beyond the 1e-9 rounding margin) on any one is; a NaN is."""
+    from evstab.studies.firmware_faults import no_spike
+    assert no_spike(reset, (2.0, 500.0, 3.0, 800.0)) == (not spike)
+
+
+@pytest.mark.parametrize("steady, back, harm, spike, finite, verdict", [
+    (True, True, False, False, True, "pass"),
+    (True, False, False, False, True, "FAIL: late"),
+    # at the limit the time is reported, not judged
+    (False, False, False, False, True, "pass (at the limit: no harm, no spike)"),
+    (False, False, True, False, True, "FAIL: harm"),
+    (False, False, False, True, True, "FAIL: spike"),
+    (True, True, False, False, False, "FAIL: not finite"),
+])
+def test_the_reset_verdict(steady, back, harm, spike, finite, verdict):
+    from evstab.studies.firmware_faults import reset_verdict
+    r = {"steady": steady, "back_in_time": back, "no_harm": not harm, "no_spike": not spike, "finite": finite}
+    assert reset_verdict(r) == verdict

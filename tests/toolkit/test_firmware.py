@@ -233,6 +233,29 @@ def test_replay_compiled_equals_numpy_reference(ecu, fault_log):
     assert np.all(np.abs(Y_c - Y_np).max(axis=0) <= 1e-12 * scale)
 
 
+def test_the_replay_runs_the_guard_with_the_laws_authority():
+    """The guard reads the law's authority and its last yaw-moment command (the vote, the two steer angles, the
+    applied yaw moment), so the replay runs it on the whole state each sample, as ``evstab_step`` does. An ECU
+    started 1.77 s into the ISO 3888-1 lane change at 100 km/h on mu 0.5 (compact-ev, its default ECU, an ECU
+    reset at speed): its law acts, and the road-wheel angle leaves the driver's by more than the steer-agreement
+    band while it does (which a guard that took the law for passive would have replaced, from 0.2 s on). The
+    compiled replay equals the numpy step to 1e-12 of each output's scale (as above)."""
+    from evstab.toolkit.loop.loop_ecu import loop_ecu
+    p = load_vehicle("compact-ev")
+    d = loop_ecu("two-dof", p).ecu
+    res = simulate(p, "two-track", make_maneuver("iso3888-1", p, 100 / 3.6), seed=0, controller="two-dof", design=d,
+                   disturbances=Disturbances(friction=Friction(mu=0.5)))
+    U = ecu_inputs(res.log_columns(), d.controller.mu_max, wheel_radius=d.wheel_radius)[1770:3770]
+    Y_c = ecu_program(d).run(U)
+    Y_np = ecu_program(d, "numpy").run(U)
+    scale = np.maximum(np.abs(Y_np).max(axis=0), 1e-6)
+    assert np.all(np.abs(Y_c - Y_np).max(axis=0) <= 1e-12 * scale)
+    y, g = OUTPUTS.columns(Y_np), INPUTS.columns(U)
+    band = d.guard.steer_agree + d.guard.steer_agree_share * np.abs(g["steer"])
+    acting = (y["active"] > 0) & (np.abs(g["steer_cmd_driver"] - g["steer"]) > band)
+    assert acting.sum() > 100
+
+
 def test_the_telemetry_sideslip_is_the_conditioned_estimate_and_the_law_never_reads_it(ecu, closed_loop):
     """``beta_telemetry`` (the second sideslip output, for logs and telemetry) against the filter's own
     conditioned output (``kalman.step`` with ``disturbance_chi2_on/full``, the output of ``evstab estimate``'s

@@ -433,10 +433,12 @@ SETTLE = 1000
 
 def _voted(samples, law_blend=0.0, settings=VOTE):
     """:func:`_run` with the vote on and the rear track given (the yaw rate is voted against the wheels and
-    ``a_y``), and the law's authority ``law_blend``."""
+    ``a_y``), and the law's authority ``law_blend``. The ECU is taken to have commanded the yaw moment applied
+    (the guard compares the applied one with the command)."""
     z, zs, cs = gm.initial_state(), [], []
     for u in samples:
         z, c = gm.guard(settings, z, u, DT, 0.3, NUMPY, track_rear=TRACK, law_blend=law_blend)
+        z = gm.with_command(z, u["yaw_moment_applied"])
         zs.append(gm.STATE.as_dict(z))
         cs.append(c)
     return zs, cs
@@ -614,3 +616,95 @@ def test_the_angles_are_not_compared_while_the_law_acts_or_has_just_stopped():
     zs, _ = _steering(201, lambda k: 0.01, lambda k: 0.01 + apart * (k >= 100))
     assert zs[199]["bad_samples"] == 0.0 and zs[200]["bad_samples"] == 1.0
 
+
+
+def _commanded(seq, cmd=0.0):
+    """The guard over ``seq`` with the ECU commanding ``cmd`` N m of yaw moment every period."""
+    z, zs, cs = gm.initial_state(), [], []
+    for u in seq:
+        z, c = gm.guard(S, z, u, DT, 0.3, NUMPY)
+        z = gm.with_command(z, cmd)
+        zs.append(gm.STATE.as_dict(z))
+        cs.append(c)
+    return zs, cs
+
+
+@pytest.mark.parametrize("applied, unasked", [(S.vote_yaw_moment, False), (S.vote_yaw_moment * (1 + 1e-9), True)])
+def test_a_yaw_moment_the_ecu_did_not_command_is_named(applied, unasked):
+    """The ECU commands nothing; from period 300 the motors report ``applied`` N m. Above ``vote_yaw_moment`` (200)
+    it is not taken (the last good value, 0, stands in) and, 50 ms on (period 349), named (bit 7) and the law's
+    authority ramps out; at 200 exactly it is taken."""
+    seq = [_inputs() for _ in range(600)]
+    for u in seq[300:]:
+        u["yaw_moment_applied"] = applied
+    zs, cs = _commanded(seq)
+    assert cs[300]["yaw_moment_applied"] == (0.0 if unasked else applied)
+    bit = 2.0 ** gm.FAULT_BITS["yaw_moment_applied"]
+    assert zs[348]["fault_word"] == 0.0 and zs[349]["fault_word"] == (bit if unasked else 0.0)
+    assert (zs[-1]["authority"] == 0.0) == unasked
+
+
+def test_the_applied_yaw_moment_is_compared_only_after_a_quiet_command():
+    """The check starts once the ECU has commanded at most ``moment_quiet`` (50 N m) for ``vote_settle`` (0.2 s):
+    the quiet time read on period ``k`` is the ``k`` periods before it, so 1,000 N m applied from the first period
+    passes on periods 0-199 and fails (counted) from period 200; with 50 N m commanded, the same; with 50 N m +
+    1e-9, the command is not quiet and every period passes (the motors follow a command through their lag)."""
+    seq = [_inputs() for _ in range(400)]
+    for u in seq:
+        u["yaw_moment_applied"] = 1000.0
+    for cmd, from_k in ((0.0, 200), (S.moment_quiet, 200), (S.moment_quiet * (1 + 1e-9), None)):
+        zs, cs = _commanded(seq, cmd)
+        counted = [z["bad_samples"] for z in zs]
+        assert counted == [0.0 if from_k is None else float(max(k - from_k + 1, 0)) for k in range(400)], cmd
+
+
+def _jump_limit(speed=16.7):
+    """The course jump the guard lets through at ``speed`` with HDOP 1 [rad]."""
+    return S.course_jump + S.course_jump_velocity / speed
+
+
+@pytest.mark.parametrize("share, dropped", [(1.0 - 1e-6, False), (1.0 + 1e-6, True)])
+def test_a_course_jump_beyond_what_the_lateral_acceleration_turned_is_dropped(share, dropped):
+    """A turn at 0.3 rad/s in which the car does not slide (``a_y = v r``): the course moves with the integral of
+    ``a_y / v`` from the last good fix, 200 periods of 0.3 rad/s * 1 ms between two fixes (the guard integrates the
+    periods after the fix, through the next one). The fix of period 1000 moves ``share`` of the bound beyond that
+    (0.087 rad + 0.3 m/s / 16.7 m/s): below it, used; beyond it, dropped and counted; the next fix, on the
+    course again, is used."""
+    r = 0.3
+    seq = _fixes(1201, lambda k: r, lambda k: r * DT * k)
+    seq[1000]["gps_course"] += share * _jump_limit()
+    zs, cs = _run(seq)
+    assert [cs[k]["gps_valid"] for k in range(0, 1000, 200)] == [1.0] * 5
+    assert cs[1000]["gps_valid"] == (0.0 if dropped else 1.0) and cs[1200]["gps_valid"] == 1.0
+    assert zs[1000]["bad_samples"] == (1.0 if dropped else 0.0)
+
+
+def test_a_course_offset_is_named_and_taken_back_when_it_stays():
+    """From period 1000 the course reads 10 deg off, and stays so, on a straight road. The fixes of periods 1000,
+    1200 and 1400 are dropped, the third sets the GPS bit (32); from then each fix is compared with the one before
+    it: 1600 (against 1400's, the first compared so) is taken back, and the fifth good fix after it (2400) clears
+    the bit. The law keeps its authority (the filter bridges a GPS outage)."""
+    seq = _fixes(3001, lambda k: 0.0, lambda k: np.radians(10.0) if k >= 1000 else 0.0)
+    zs, cs = _run(seq)
+    used = [cs[k]["gps_valid"] for k in range(0, 3001, 200)]
+    assert used == [1.0] * 5 + [0.0] * 3 + [1.0] * 8
+    bit = 2.0 ** gm.FAULT_BITS["gps"]
+    assert zs[1399]["fault_word"] == 0.0 and zs[1400]["fault_word"] == bit
+    assert zs[2399]["fault_word"] == bit and zs[2400]["fault_word"] == 0.0
+    assert all(z["authority"] == 1.0 for z in zs)
+
+
+@pytest.mark.parametrize("case", ["outage", "slow"])
+def test_a_course_jump_after_an_outage_or_at_walking_pace_is_taken(case):
+    """No comparison after ``course_jump_window`` (1 s) without a good fix (the integral of ``a_y / v`` drifts with
+    the accelerometer's error), nor below ``consistency_speed`` (5 m/s, where the course's own noise grows): a fix
+    10 deg off, 1.2 s after the last one or at 4.9 m/s, is used."""
+    seq = _fixes(2201, lambda k: 0.0, lambda k: np.radians(10.0) if k >= 2200 else 0.0)
+    if case == "outage":
+        for u in seq[1001:2200]:
+            u["gps_valid"] = 0.0
+    else:
+        for u in seq:
+            u["speed"], u["wheel_speed_rl"], u["wheel_speed_rr"] = 4.9, 4.9 / 0.3, 4.9 / 0.3
+    zs, cs = _run(seq)
+    assert cs[2200]["gps_valid"] == 1.0 and zs[-1]["bad_samples"] == 0.0

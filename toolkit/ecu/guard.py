@@ -36,8 +36,16 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
 * a course fix whose course, HDOP or satellite count is not finite, or whose HDOP is not positive,
   is dropped (``gps_valid`` 0), and so is a stuck one: a course equal to the bit to the last fix whose course
   changed while the gyro says the car has turned by more than ``course_stuck_turn`` since (a receiver's or a
-  gateway's repeated message: each fix is plausible by itself, and the filter would pull the heading back);
-  ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear wheel speed out of range as no sensor
+  gateway's repeated message: each fix is plausible by itself, and the filter would pull the heading back),
+  and so is one whose course has moved from the last good fix's by more than the lateral acceleration turned
+  the car's velocity since (``integral of a_y / v``, the course's rate) plus ``course_jump`` (a receiver's jump
+  or offset; within ``course_jump_window`` of that fix, above ``consistency_speed``; in a GPS fault each fix is
+  compared with the one before, so that a course that has moved on for good is taken back);
+* the applied yaw moment against the ECU's own command: with the command within ``moment_quiet`` for
+  ``vote_settle`` (the motors' lag decayed), more than ``vote_yaw_moment`` applied is a moment the ECU did not
+  ask for (an offset the filter would take for the motors'): it fails its check and reads as its last good value
+  (the step keeps its command in the guard's state for the next period, :func:`with_command`);
+* ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear wheel speed out of range as no sensor
   (``speed / wheel radius``: slip control off).
 
 A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
@@ -193,6 +201,24 @@ class GuardSettings:
     course_stuck_tau: float = 1.0
     """[s] ... the heading change integrated with a leak of this time constant, so that a gyro bias cannot build
     it up on a long straight (a bias ``b`` reaches ``b course_stuck_tau`` at most: 0.003 rad for 3 mrad/s)."""
+    course_jump: float = 0.087
+    """[rad] A fix whose course has moved from the last good fix's by more than the lateral acceleration turned the
+    car's velocity since (``integral of a_y / v``: the course's rate, whatever the car's sideslip does), by more
+    than this plus ``course_jump_velocity * hdop / v``, is dropped (a receiver's jump or offset: 5 deg; between two
+    5 Hz fixes an accelerometer 0.5 m/s^2 off at 5 m/s turns the integral by 1.1 deg, and a fix describing an
+    instant 0.1 s earlier than it arrives by about 1 deg in a transient at the limit) ..."""
+    course_jump_velocity: float = 0.3
+    """[m/s] ... (the fixes' own noise: 0.3 m/s is 5 standard deviations of the difference of two fixes with
+    0.04 m/s per axis) ..."""
+    course_jump_window: float = 1.0
+    """[s] ... while the last good fix is no older than this (the integral's error grows with its time: after an
+    outage the next fix is taken), above ``consistency_speed``. While the GPS is in fault each fix is compared with
+    the fix before it, so that a course that has moved on for good is taken back after ``GPS_RECOVER_FIXES``."""
+    moment_quiet: float = 50.0
+    """[N m] The applied yaw moment is offset when the ECU has commanded at most this for ``vote_settle`` and the
+    motors report more than ``vote_yaw_moment`` (their lag has long decayed: a 3,000 N m command that ended
+    0.2 s ago is 55 N m with a 50 ms lag); a command the ECU did not make, which the filter would take for the
+    motors' own."""
 
     def __post_init__(self):
         if self.steer_agree is not None and not (np.isfinite(self.steer_agree) and self.steer_agree > 0):
@@ -205,7 +231,8 @@ class GuardSettings:
             raise ModelError(f"guard setting 'dt_band' must be None (no band) or between 0 and 1, got {self.dt_band!r}")
         for k in ("dt_max", "latch_time", "recover_time", "ramp_time", "restart_hold", "stuck_time",
                   "consistency_ay", "consistency_rate", "consistency_speed", "course_stuck_turn",
-                  "course_stuck_tau", "vote_tau", "vote_settle", "vote_ay", "vote_yaw_moment", "steer_agree_share",
+                  "course_stuck_tau", "course_jump", "course_jump_velocity", "course_jump_window", "moment_quiet",
+                  "vote_tau", "vote_settle", "vote_ay", "vote_yaw_moment", "steer_agree_share",
                   "steer_settle"):
             v = getattr(self, k)
             if not (np.isfinite(v) and (v > 0 or (k == "restart_hold" and v == 0))):
@@ -228,6 +255,13 @@ STATE = Layout("ECU guard state", [
     Signal("last_course", "rad", "course of the last fix whose course changed"),
     Signal("course_seen", "-", "1 once a fix has been read"),
     Signal("course_turn", "rad", "the gyro's heading change since that fix (leaking with course_stuck_tau)"),
+    Signal("course_anchor", "rad", "course of the last good fix (in a GPS fault: of the last fix read)"),
+    Signal("course_moved", "rad", "the integral of a_y / v since that fix"),
+    Signal("course_age", "s", "time since that fix (saturates at twice course_jump_window)"),
+    Signal("course_anchored", "-", "1 once a fix has been taken as the anchor"),
+    Signal("last_yaw_moment_cmd", "N m", "the yaw moment the ECU commanded on the last period"),
+    Signal("moment_quiet_time", "s", "time the ECU has commanded at most moment_quiet (saturates at twice "
+           "vote_settle)"),
     Signal("held_yaw_rate", "s", "time the yaw rate has read the same value"),
     Signal("started", "-", "1 once a period has run (the first has no last good values to compare with)"),
     Signal("authority", "-", "the law's authority (1: full, 0: the driver passed through)"),
@@ -238,6 +272,14 @@ STATE = Layout("ECU guard state", [
     Signal("fault_word", "-", "bit per signal in fault (FAULT_BITS)"),
 ])
 """The guard's part of the ECU state."""
+
+
+def with_command(zg, yaw_moment_cmd, o=NUMPY):
+    """The guard's state ``zg`` after a period with the ECU's final ``yaw_moment_cmd`` kept in it (the next period
+    compares the applied yaw moment with it)."""
+    st = STATE.as_dict(zg)
+    st["last_yaw_moment_cmd"] = yaw_moment_cmd
+    return STATE.pack(st, o)
 
 
 def tree(items: list, op):
@@ -308,6 +350,16 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         for name in ("steer", "steer_cmd_driver"):
             oks[name] = oks[name] * (1.0 - apart)
             clean[name] = o.if_else(oks[name], g[name], st[f"last_{name}"])
+    # the applied yaw moment against the ECU's own command: with the command quiet for vote_settle the motors' lag
+    # has decayed, and a yaw moment beyond vote_yaw_moment is one the ECU did not ask for (an offset the filter would
+    # take for the motors' own); it fails its check and reads as its last good value
+    cmd_quiet = o.fabs(st["last_yaw_moment_cmd"]) <= s.moment_quiet
+    nxt["moment_quiet_time"] = o.if_else(cmd_quiet, o.fmin(st["moment_quiet_time"] + dt_c, 2.0 * s.vote_settle), 0.0)
+    unasked = cmd_quiet * (st["moment_quiet_time"] >= s.vote_settle - 0.25 * dt_nominal) * \
+        (o.fabs(g["yaw_moment_applied"]) > s.vote_yaw_moment)
+    oks["yaw_moment_applied"] = oks["yaw_moment_applied"] * (1.0 - unasked)
+    clean["yaw_moment_applied"] = o.if_else(oks["yaw_moment_applied"], g["yaw_moment_applied"],
+                                            st["last_yaw_moment_applied"])
     # the yaw rate against the lateral acceleration: a held one that disagrees is stuck
     disagree = (o.fabs(clean["ay"] - v * r_raw) > s.consistency_ay + s.consistency_rate * v) * \
         (v >= s.consistency_speed)
@@ -366,7 +418,17 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     nxt["course_seen"] = o.fmax(st["course_seen"], read)
     turn = st["course_turn"] * o.fmax(1.0 - dt_c / s.course_stuck_tau, 0.0) + clean["yaw_rate"] * dt_c
     nxt["course_turn"] = o.if_else(changed > 0.5, 0.0, o.fmin(o.fmax(turn, -10.0), 10.0))
-    fix_ok = fix_ok * (1.0 - stuck_fix)
+    # nor is one whose course has moved from the last good fix's by more than the lateral acceleration turned the
+    # car's velocity since (a_y / v is the course's rate, whatever the sideslip does): a receiver's jump or offset
+    moved = o.fmin(o.fmax(st["course_moved"] + clean["ay"] / o.fmax(v, s.consistency_speed) * dt_c, -np.pi), np.pi)
+    age = st["course_age"] + dt_c
+    diff = g["gps_course"] - st["course_anchor"] - moved
+    diff = o.if_else(diff > np.pi, diff - 2.0 * np.pi, o.if_else(diff < -np.pi, diff + 2.0 * np.pi, diff))
+    limit = s.course_jump + s.course_jump_velocity * g["gps_hdop"] / o.fmax(v, s.consistency_speed)
+    jumped = read * st["course_anchored"] * (age <= s.course_jump_window) * (v >= s.consistency_speed) * \
+        (o.fabs(diff) > limit)
+    taken = read * (1.0 - stuck_fix)
+    fix_ok = fix_ok * (1.0 - stuck_fix) * (1.0 - jumped)
     clean["gps_valid"] = fix * fix_ok
     clean["gps_course"] = o.if_else(fix * fix_ok, g["gps_course"], 0.0)
     clean["gps_hdop"] = o.if_else(fix_ok, g["gps_hdop"], 1.0)
@@ -405,6 +467,12 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
         nxt[f"fault_{name}"] = fault_n
         words.append(fault_n * float(2 ** FAULT_BITS[name]))
     word = tree(words, lambda a, b: a + b)
+    # the course's anchor: a good fix, or any fix read while the GPS is in fault (from the fix that latches it)
+    anchor = o.fmax(taken * (1.0 - jumped), taken * nxt["fault_gps"])
+    nxt["course_anchor"] = o.if_else(anchor > 0.5, g["gps_course"], st["course_anchor"])
+    nxt["course_moved"] = o.if_else(anchor > 0.5, 0.0, moved)
+    nxt["course_age"] = o.if_else(anchor > 0.5, 0.0, o.fmin(age, 2.0 * s.course_jump_window))
+    nxt["course_anchored"] = o.fmax(st["course_anchored"], anchor)
     # a speed in fault takes the authority only where the wheels cannot stand in for it
     # (both wheel speeds in range now and neither in fault: the same hysteresis as the speed's own)
     stand_in = wheels_ok * (1.0 - nxt["fault_wheel_speed_rl"]) * (1.0 - nxt["fault_wheel_speed_rr"])

@@ -594,7 +594,10 @@ def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
                                    kalman.initial_state(d.filter, 0.0, 0.0), control_start(d, o), o)
     z_est_n, est = ecu_estimate(d, z_est, u, o, with_course, moving)
     z_ctl_n, out = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
-    return o.concat([z_est_n, z_ctl_n, zg]), with_authority(out, u, zg, broken, o)
+    y = with_authority(out, u, zg, broken, o)
+    # the guard compares the next period's applied yaw moment with this period's command
+    zg = guard_mod.with_command(zg, OUTPUTS.as_dict(y)["yaw_moment_cmd"], o)
+    return o.concat([z_est_n, z_ctl_n, zg]), y
 
 
 def traced_guard(d: EcuDesign):

@@ -102,8 +102,11 @@ class EcuProgram:
 
     @property
     def guard_chunk_fn(self) -> ca.Function:
-        """``(zg0, U) -> (zg_end, [U_clean; zg])`` over :data:`CHUNK` samples: the input guard alone (its state
-        does not depend on the rest of the step), run first so that the tables are read at the guarded speed."""
+        """``(zg0, U) -> (zg_end, [U_clean; zg])`` over :data:`CHUNK` samples: the input guard alone, its state
+        started from ``zg0`` and the rest of the step's state at 0. Only its guarded speed is read (the schedule's
+        tables are read at it): the speed's checks read the inputs and the guard's own speed history alone, so it is
+        the step's; the rest of the guard reads the law's authority and command too (the vote, the two steer angles,
+        the applied yaw moment), which the step (:attr:`chunk_fn`) runs the guard with."""
         if self._guard_chunk is None:
             d = self.design
             ng = guard_mod.STATE.size
@@ -123,22 +126,24 @@ class EcuProgram:
 
     @property
     def chunk_fn(self) -> ca.Function:
-        """``(z0, U, S, cal) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use)."""
+        """``(z0, U, S, cal) -> (z_end, Y)`` over :data:`CHUNK` samples (built on first use): per sample the input
+        guard on the whole state (as the exported ``evstab_step``), then the step after it on the inputs it passed,
+        ``S`` the schedule's rows at the guarded speed."""
         if self._chunk is None:
-            # the step after the guard: its inputs are the guarded ones, its guard state the guard's (per sample)
-            nofix, fix = traced_steps(self.design)
+            d = self.design
+            guard = traced_guard(d)
+            nofix, fix = traced_steps(d)
             switch = ca.Function.conditional("ecu_switch", [nofix], fix)
             nz, nu, ns, nc = (nofix.size1_in(i) for i in range(4))
-            ng = guard_mod.STATE.size
-            z, u, s, c = ca.MX.sym("z", nz - ng), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
-            zg = ca.MX.sym("zg", ng)
-            zn, y = switch(ca.if_else(u[INPUTS.index("gps_valid")] > 0.5, 1, 0), ca.vertcat(z, zg), u, s, c)
-            step = ca.Function("ecu_step", [z, u, s, zg, c], [zn[:nz - ng], y])
+            z, u, s, c = ca.MX.sym("z", nz), ca.MX.sym("u", nu), ca.MX.sym("s", ns), ca.MX.sym("c", nc)
+            zg, uc = guard(z, u, c)
+            zn, y = switch(ca.if_else(uc[INPUTS.index("gps_valid")] > 0.5, 1, 0), zg, uc, s, c)
+            step = ca.Function("ecu_step", [z, u, s, c], [zn, y])
             acc = step.mapaccum("ecu_acc", CHUNK)
-            z0, U, S = ca.MX.sym("z0", nz - ng), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK)
-            ZG, C = ca.MX.sym("ZG", ng, CHUNK), ca.MX.sym("c", nc)
-            Z, Y = acc(z0, U, S, ZG, ca.repmat(C, 1, CHUNK))
-            self._chunk = ca.Function("ecu_chunk", [z0, U, S, ZG, C], [Z[:, -1], Y])
+            z0, U, S = ca.MX.sym("z0", nz), ca.MX.sym("U", nu, CHUNK), ca.MX.sym("S", ns, CHUNK)
+            C = ca.MX.sym("c", nc)
+            Z, Y = acc(z0, U, S, ca.repmat(C, 1, CHUNK))
+            self._chunk = ca.Function("ecu_chunk", [z0, U, S, C], [Z[:, -1], Y])
         return self._chunk
 
     def run(self, U: np.ndarray, z0: np.ndarray | None = None) -> np.ndarray:
@@ -155,14 +160,14 @@ class EcuProgram:
                 z = np.concatenate([z[:ig], zg])
                 z, Y[k] = ecu_core(d, z, uc, d.schedule_inputs(uc[ispeed]), NUMPY, with_course=bool(uc[ifix] > 0.5))
             return Y
-        # the guard first (its state depends on the inputs alone), then the tables at the guarded speed
+        # the guarded speed first (the schedule's tables are read at it), then the step with its guard per sample
         G = run_chunks(z[ig:], [U], INPUTS.size + guard_mod.STATE.size, CHUNK,
                        c_fn=self._gc if self.backend == "c" else None, casadi_fn=self.guard_chunk_fn,
                        constants=[self.cal])
-        Uc, ZG = np.ascontiguousarray(G[:, :INPUTS.size]), np.ascontiguousarray(G[:, INPUTS.size:])
-        S = d.schedule_inputs(Uc[:, ispeed])
-        return run_chunks(z[:ig], [Uc, S, ZG], ny, CHUNK, c_fn=self._c if self.backend == "c" else None,
-                          casadi_fn=self.chunk_fn, constants=[self.cal], fix_column=ifix)
+        S = d.schedule_inputs(G[:, ispeed])
+        return run_chunks(z, [np.ascontiguousarray(U, dtype=float), S], ny, CHUNK,
+                          c_fn=self._c if self.backend == "c" else None, casadi_fn=self.chunk_fn, constants=[self.cal],
+                          fix_column=ifix)
 
 
 def for_log_periods(d: EcuDesign, U: np.ndarray) -> EcuDesign:

@@ -187,9 +187,11 @@ class LoopEcu:
                 law["xi_beta"] = law["xi_yaw_rate"] = zero
                 z_ctl_n = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law, o),
                                                 supervisor=parts["supervisor"])
-        z_ctl_n = o.concat([z_ctl_n, zg])
+        y = with_authority(y, u, zg, broken, o)
+        # the guard compares the next period's applied yaw moment with this period's command
+        z_ctl_n = o.concat([z_ctl_n, guard_mod.with_command(zg, ECU_OUTPUTS.as_dict(y)["yaw_moment_cmd"], o)])
         z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
-        return z_next, with_authority(y, u, zg, broken, o)
+        return z_next, y
 
 
 def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: str | FilterDesign = "dakf",
