@@ -22,8 +22,8 @@ spike inside the physical range, stuck for 1 s, an offset for 1 s (:data:`toolki
   driver's first steer, between its two lane changes). Against an ECU that never reset, replayed over
   the same run's sensor log (:func:`shadow_commands`: the same car on the same path): how long after the
   boot the commands differ by more than 0.05 deg or 50 N m ("the law is back"; at most 1 s in the turns), the
-  largest difference, the largest command and change per period after the boot against the never-reset
-  ECU's over the run (a spike: above it; :func:`command_peaks`), and the peak sideslip by the no-harm rule
+  largest difference, the commands' largest change per period after the boot against the never-reset
+  ECU's over the run (a spike: above it; :func:`command_steps`), and the peak sideslip by the no-harm rule
   against the car alone (:func:`reset_verdict`).
 
 Outputs: ``firmware_faults.csv`` (every run), ``firmware_faults_table.md`` (per input and fault, the worst
@@ -123,20 +123,20 @@ def back_after(t, steer, steer_ref, nz, nz_ref, from_t: float) -> tuple[float, f
     return back, float(ds.max()), float(dn.max())
 
 
-def command_peaks(t, steer, steer_driver, nz, from_t: float = -np.inf) -> np.ndarray:
-    """From ``from_t`` on: the largest steer correction ``|steer - steer_driver|`` [deg], yaw moment [N m], and the
-    largest change of each from one period to the next."""
+def command_steps(t, steer, steer_driver, nz, from_t: float = -np.inf) -> np.ndarray:
+    """From ``from_t`` on: the largest change from one period to the next of the steer correction ``steer -
+    steer_driver`` [deg] and of the yaw moment [N m]."""
     k = np.flatnonzero(np.asarray(t) >= from_t - 1e-9)
     corr = np.degrees(np.asarray(steer, float) - np.asarray(steer_driver, float))[k]
     m = np.asarray(nz, float)[k]
-    steps = [np.abs(np.diff(x)).max() if len(x) > 1 else 0.0 for x in (corr, m)]
-    return np.array([np.abs(corr).max(), np.abs(m).max(), *steps])
+    return np.array([np.abs(np.diff(x)).max() if len(x) > 1 else 0.0 for x in (corr, m)])
 
 
-def no_spike(reset_peaks, never_peaks) -> bool:
-    """A reset's commands after the boot spike where one of :func:`command_peaks` exceeds what the ECU that never
-    reset commanded over the whole run on the same inputs (1e-9 of it, and 1e-9 deg or N m: rounding)."""
-    r, n = np.asarray(reset_peaks, float), np.asarray(never_peaks, float)
+def no_spike(reset_steps, never_steps) -> bool:
+    """A reset's commands spike where one of their :func:`command_steps` after the boot exceeds what the ECU that
+    never reset made over the whole run on the same inputs (by more than 1e-9 of it and 1e-9 deg or N m: rounding):
+    a start from a state that does not fit the car steps its commands as the law itself never does."""
+    r, n = np.asarray(reset_steps, float), np.asarray(never_steps, float)
     return bool(np.all(np.isfinite(r)) and np.all(r <= n * (1.0 + 1e-9) + 1e-9))
 
 
@@ -171,8 +171,8 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
             c = r.commands
             steer0, nz0 = shadow_commands(ecu, r)
             back, ds, dn = back_after(r.t, c["steer_cmd"], steer0, c["yaw_moment_cmd"], nz0, f.end)
-            peaks = command_peaks(r.t, c["steer_cmd"], c["steer_driver"], c["yaw_moment_cmd"], f.end)
-            never = command_peaks(r.t, steer0, c["steer_driver"], nz0)
+            steps = command_steps(r.t, c["steer_cmd"], c["steer_driver"], c["yaw_moment_cmd"], f.end)
+            never = command_steps(r.t, steer0, c["steer_driver"], nz0)
             peak = peak_beta_deg(r)
             peak_alone = peak_beta_deg(alone)
             row = {"case": f"reset at {RESET_KMH:.0f} km/h: {name}", "seed": seed, "reset_at_s": start,
@@ -180,17 +180,17 @@ def reset_runs(p, quick: bool = False) -> list[dict]:
                    "yaw_moment_diff_nm": dn, "peak_beta_deg": peak,
                    "no_reset_peak_beta_deg": peak_beta_deg(clean),
                    "alone_peak_beta_deg": peak_alone, "no_harm": no_harm(peak, peak_alone),
-                   "back_in_time": bool(back <= BACK_WITHIN_S), "no_spike": no_spike(peaks, never),
+                   "back_in_time": bool(back <= BACK_WITHIN_S), "no_spike": no_spike(steps, never),
                    "steady": at is not None,
-                   **{f"reset_{k}": float(a) for k, a in zip(PEAKS, peaks)},
-                   **{f"never_{k}": float(a) for k, a in zip(PEAKS, never)}}
+                   **{f"reset_{k}": float(a) for k, a in zip(STEPS, steps)},
+                   **{f"never_{k}": float(a) for k, a in zip(STEPS, never)}}
             rows.append(row)
             print(row, flush=True)
     return rows
 
 
-PEAKS = ("steer_deg", "yaw_moment_nm", "steer_step_deg", "yaw_moment_step_nm")
-"""The entries of :func:`command_peaks`."""
+STEPS = ("steer_step_deg", "yaw_moment_step_nm")
+"""The entries of :func:`command_steps`."""
 
 
 def reset_verdict(r: dict) -> str:
@@ -282,12 +282,12 @@ def main(out, quick: bool = False) -> list[dict]:
     write_markdown(out / "firmware_faults_reset.md",
                    ["case", "seed", "reset at [s]", "law back after the boot [s]", "largest steer difference [deg]",
                     "largest yaw-moment difference [N m]",
-                    "largest steer correction / yaw moment after the boot: reset / never reset [deg, N m]",
+                    "largest change per period after the boot, steer / yaw moment: reset / never reset [deg, N m]",
                     "peak sideslip: reset / no reset / car alone [deg]", "verdict"],
                    [[r["case"], r["seed"], f"{r['reset_at_s']:.2f}", f"{r['back_after_s']:.3f}",
                      f"{r['steer_diff_deg']:.3f}", f"{r['yaw_moment_diff_nm']:.0f}",
-                     f"{r['reset_steer_deg']:.2f} / {r['never_steer_deg']:.2f}, "
-                     f"{r['reset_yaw_moment_nm']:.0f} / {r['never_yaw_moment_nm']:.0f}",
+                     f"{r['reset_steer_step_deg']:.3f} / {r['never_steer_step_deg']:.3f}, "
+                     f"{r['reset_yaw_moment_step_nm']:.0f} / {r['never_yaw_moment_step_nm']:.0f}",
                      f"{r['peak_beta_deg']:.2f} / {r['no_reset_peak_beta_deg']:.2f} / {r['alone_peak_beta_deg']:.2f}",
                      reset_verdict(r)] for r in resets])
     keys = list(dict.fromkeys(k for r in rows for k in r))

@@ -73,28 +73,27 @@ def test_the_fault_tables_verdict(straight, lane, verdict):
     assert (t["excess"], t["by_fault"]) == pytest.approx((0.5, 0.1))
 
 
-def test_command_peaks_by_hand():
+def test_command_steps_by_hand():
     """Periods 0-3 (1 ms), from 0.002 s on: corrections 2 and -1 deg of steer, yaw moments 300 and -500 N m; the
-    largest of each, and the largest change from one period to the next within the span (3 deg, 800 N m)."""
+    largest change of each from one period to the next within the span (3 deg, 800 N m); over all four periods
+    (8 -> 2 deg: 6; 5000 -> 300 N m: 4700)."""
     import numpy as np
-    from evstab.studies.firmware_faults import command_peaks
+    from evstab.studies.firmware_faults import command_steps
     t = np.array([0.0, 0.001, 0.002, 0.003])
     driver = np.radians([1.0, 1.0, 1.0, 1.0])
     steer = np.radians([9.0, 9.0, 3.0, 0.0])
     nz = np.array([5000.0, 5000.0, 300.0, -500.0])
-    assert command_peaks(t, steer, driver, nz, 0.002) == pytest.approx([2.0, 500.0, 3.0, 800.0], rel=1e-12)
-    assert command_peaks(t, steer, driver, nz) == pytest.approx([8.0, 5000.0, 6.0, 4700.0], rel=1e-12)
+    assert command_steps(t, steer, driver, nz, 0.002) == pytest.approx([3.0, 800.0], rel=1e-12)
+    assert command_steps(t, steer, driver, nz) == pytest.approx([6.0, 4700.0], rel=1e-12)
 
 
-@pytest.mark.parametrize("reset, spike", [((2.0, 500.0, 3.0, 800.0), False),
-                                          ((2.0, 500.0, 3.0, 800.0 * (1 + 1e-6)), True),
-                                          ((2.0 * (1 + 1e-6), 500.0, 3.0, 800.0), True),
-                                          ((2.0, float("nan"), 3.0, 800.0), True)])
+@pytest.mark.parametrize("reset, spike", [((3.0, 800.0), False), ((3.0, 800.0 * (1 + 1e-6)), True),
+                                          ((3.0 * (1 + 1e-6), 800.0), True), ((3.0, float("nan")), True)])
 def test_no_spike_at_its_boundary(reset, spike):
-    """Each of a reset's peaks at most the never-reset ECU's (2 deg, 500 N m, 3 deg, 800 N m): equal is no spike;
-    1e-6 above (beyond the 1e-9 rounding margin) on any one is; a NaN is."""
+    """Each of a reset's steps at most the never-reset ECU's (3 deg, 800 N m): equal is no spike; 1e-6 above
+    (beyond the 1e-9 rounding margin) on either is; a NaN is."""
     from evstab.studies.firmware_faults import no_spike
-    assert no_spike(reset, (2.0, 500.0, 3.0, 800.0)) == (not spike)
+    assert no_spike(reset, (3.0, 800.0)) == (not spike)
 
 
 @pytest.mark.parametrize("steady, back, harm, spike, finite, verdict", [
