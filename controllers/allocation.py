@@ -84,6 +84,18 @@ class AllocationDesign:
         if not 0.0 < self.slip_onset < 1.0:
             raise SettingsError(f"allocation setting 'slip_onset' must be within (0, 1), got {self.slip_onset!r}")
 
+    @classmethod
+    def from_vehicle(cls, p, mode: str = "motors", **settings) -> "AllocationDesign":
+        """The allocation of vehicle ``p`` (:class:`plants.params.VehicleParams`: its geometry, brakes and motor
+        torque limit; a :class:`plants.errors.ParameterError` naming what the file lacks) in ``mode``."""
+        from .brakes import FIELDS
+        p.require("cg_height", "track_front", "track_rear", "wheel_radius", "max_motor_torque", *FIELDS,
+                  model="the brakes' allocation")
+        return cls(mass=p.mass, lf=p.lf, lr=p.lr, cg_height=p.cg_height, track_front=p.track_front,
+                   track_rear=p.track_rear, wheel_radius=p.wheel_radius, brake_gain_front=p.brake_gain_front,
+                   brake_gain_rear=p.brake_gain_rear, brake_pressure_max=p.brake_pressure_max,
+                   torque_max=p.max_motor_torque, mode=mode, **settings)
+
     @property
     def gains(self) -> tuple[float, float, float, float]:
         """[N m/Pa] at (FL, FR, RL, RR)."""
@@ -93,6 +105,16 @@ class AllocationDesign:
     def motor_yaw_capacity(self) -> float:
         """[N m] the yaw moment the rear motors' torque difference makes at their torque limit."""
         return self.torque_max * self.track_rear / self.wheel_radius
+
+
+def brake_yaw_capacity(d: AllocationDesign, mu):
+    """[N m] The yaw moment one wheel's brake makes at friction ``mu`` with its static load, the larger of a front
+    and a rear wheel (``mu F_z t / 2``): what the law may ask of the brakes (:func:`wheel_grip` holds each wheel
+    within its tyre's grip as the car turns)."""
+    L = d.lf + d.lr
+    front = 0.5 * d.mass * G * d.lr / L * 0.5 * d.track_front
+    rear = 0.5 * d.mass * G * d.lf / L * 0.5 * d.track_rear
+    return mu * max(front, rear)
 
 
 def wheel_grip(d: AllocationDesign, mu, ay, o=NUMPY):

@@ -56,7 +56,8 @@ def test_one_bad_sample_is_replaced_and_counted_not_a_fault(name):
         u[name] = 0.001 * k  # moving at 1 unit/s: the last good value is the previous sample's
         if name == "speed":  # the rear wheels roll with it
             u["wheel_speed_rl"] = u["wheel_speed_rr"] = 0.001 * k / 0.3
-    for bad in (np.nan, np.inf, -np.inf, 1e6):
+    upper = next(c.upper for c in gm.CHECKS if c.name == name)
+    for bad in (np.nan, np.inf, -np.inf, 2.0 * upper):  # beyond the range
         seq = [dict(u) for u in good]
         seq[3][name] = bad
         zs, cs = _run(seq)
@@ -68,7 +69,7 @@ def test_one_bad_sample_is_replaced_and_counted_not_a_fault(name):
         assert zs[4]["bad_samples"] == 1.0 and zs[4]["fault_word"] == 0.0 and zs[4]["authority"] == 1.0
 
 
-@pytest.mark.parametrize("name", [c.name for c in gm.CHECKS] + ["dt"])
+@pytest.mark.parametrize("name", [c.name for c in gm.CHECKS if c.degrading] + ["dt"])
 def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
     """NaN for 0.5 s: in fault from the 50th bad sample (latch_time 0.05 s), its bit in the fault word; the
     authority falls by dt / ramp_time per period (0.2 s to 0); 0.2 s of good samples later (recover_time) the
@@ -93,6 +94,21 @@ def test_a_persistent_fault_is_named_ramped_out_and_recovered(name):
     assert list(restarts) == [0, 799]  # the first period is a start too (an ECU reset at speed), then the recovery
     assert k[798] == 0.0 and k[799] == pytest.approx(DT / S.ramp_time) and k[799 + 199] == 1.0
     assert zs[-1]["bad_samples"] == 500.0
+
+
+def test_a_lost_drivers_brake_pressure_is_named_and_held_the_law_keeps_its_authority():
+    """The driver's brake pressure NaN for 0.5 s from period 100, after 20 bar: it reads as 20 bar (its last good
+    value: the brakes pass it on), named from the 50th bad sample (bit 8192) to the 200th good one, and the law's
+    authority stays whole (nothing of the law reads it) with no restart."""
+    seq = [_inputs() for _ in range(1000)]
+    for k, u in enumerate(seq):
+        u["brake_pressure_driver"] = 2e6 if not 100 <= k < 600 else np.nan
+    zs, cs = _run(seq)
+    bit = float(2 ** gm.FAULT_BITS["brake_pressure_driver"])
+    assert bit == 8192.0 and all(cs[k]["brake_pressure_driver"] == 2e6 for k in range(1000))
+    word = [z["fault_word"] for z in zs]
+    assert word[148] == 0.0 and word[149] == bit and word[798] == bit and word[799] == 0.0
+    assert all(z["authority"] == 1.0 for z in zs) and [k for k, z in enumerate(zs) if z["restart"]] == [0]
 
 
 def test_a_restart_hold_keeps_the_authority_out():

@@ -45,8 +45,9 @@ Each period, before the filter and the law see anything, :func:`guard` checks th
   ``vote_settle`` (the motors' lag decayed), more than ``vote_yaw_moment`` applied is a moment the ECU did not
   ask for (an offset the filter would take for the motors'): it fails its check and reads as its last good value
   (the step keeps its command in the guard's state for the next period, :func:`with_command`);
-* ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a rear wheel speed out of range as no sensor
-  (``speed / wheel radius``: slip control off).
+* ``mu`` out of range reads as no sensor (:data:`MU_NO_SENSOR`); a wheel speed out of range as no sensor
+  (``speed / wheel radius``: slip control off at a rear wheel, the brakes' slip limiter at any); the driver's brake
+  pressure out of range as its last good value (named, not degrading: the brakes pass it on).
 
 A signal that fails for ``latch_time`` in a row is in fault (the GPS: :data:`GPS_LATCH_FIXES` bad fixes in a
 row, recovering after :data:`GPS_RECOVER_FIXES` good ones): its bit in ``fault_word``
@@ -100,12 +101,15 @@ CHECKS = (
     Check("steer_cmd_driver", -1.0, 1.0, 5.0, 0.01, 6, True),
     # the motors' torque difference can step from one period to the next
     Check("yaw_moment_applied", -1e5, 1e5, None, 0.0, 7, True),
+    # -10 to 300 bar (a sensor's zero shift reads a little below 0; no car's master cylinder reaches 300 bar); the
+    # driver brakes in one step
+    Check("brake_pressure_driver", -1e6, 3e7, None, 0.0, 13, False),
 )
 """The physical inputs checked for range and rate, with their fault bit and whether a fault in them takes
 the law's authority."""
 DEGRADING = tuple(c.name for c in CHECKS if c.degrading) + ("dt", "calibration")
 FAULT_BITS = {"dt": 0, **{c.name: c.bit for c in CHECKS}, "gps": 5, "mu": 8, "wheel_speed_rl": 9,
-              "wheel_speed_rr": 10, "state": 11, "calibration": 12}
+              "wheel_speed_rr": 10, "state": 11, "calibration": 12, "wheel_speed_fl": 14, "wheel_speed_fr": 15}
 """Bit of each signal in ``fault_word`` (``state``: the ECU state was found non-finite and restarted;
 ``calibration``: a calibration scalar outside the limits the A2L declares)."""
 MU_NO_SENSOR = 10.0
@@ -239,7 +243,8 @@ class GuardSettings:
                 raise ModelError(f"guard setting '{k}' must be a finite number > 0, got {v!r}")
 
 
-_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr", "calibration"]
+_SIGNALS = [c.name for c in CHECKS] + ["dt", "gps", "mu", "wheel_speed_rl", "wheel_speed_rr", "calibration",
+                                       "wheel_speed_fl", "wheel_speed_fr"]
 STATE = Layout("ECU guard state", [
     *[Signal(f"last_{c.name}", "-", f"last good {c.name}") for c in CHECKS],
     *[Signal(f"bad_{s}", "s", f"time {s} has failed its checks in a row (the GPS: fixes)") for s in _SIGNALS],
@@ -440,7 +445,7 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     mu_ok = (g["mu"] >= 0.0) * (g["mu"] <= MU_NO_SENSOR)
     clean["mu"] = o.if_else(mu_ok, g["mu"], MU_NO_SENSOR)
     bad["mu"] = 1.0 - mu_ok
-    for side in ("rl", "rr"):
+    for side in ("rl", "rr", "fl", "fr"):
         w = g[f"wheel_speed_{side}"]
         w_ok = (w >= -WHEEL_SPEED_MAX) * (w <= WHEEL_SPEED_MAX)
         clean[f"wheel_speed_{side}"] = o.if_else(w_ok, w, clean["speed"] / wheel_radius)

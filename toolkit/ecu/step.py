@@ -29,6 +29,7 @@ from functools import lru_cache
 import numpy as np
 
 from evstab.controllers import supervisor as sup_mod
+from evstab.controllers.allocation import AllocationDesign, allocate, brake_yaw_capacity
 from evstab.controllers import two_dof as ctl_mod
 from evstab.controllers.schedule import ROWS, SpeedSchedule
 from evstab.controllers.two_dof import TwoDofDesign, control_law, reference, yaw_rate_limit
@@ -65,6 +66,11 @@ INPUTS = Layout("ECU inputs", [
     Signal("mu", "-", "optional: friction from a road sensor, an upper bound on the ECU's own estimate (without a sensor: the design's mu_max, or any larger value)"),
     Signal("wheel_speed_rl", "rad/s", "rear-left wheel speed (without a sensor: speed / wheel radius, which switches slip control off)"),
     Signal("wheel_speed_rr", "rad/s", "rear-right wheel speed (without a sensor: as above)"),
+    Signal("wheel_speed_fl", "rad/s", "front-left wheel speed (without a sensor: speed / wheel radius, which switches "
+           "the brakes' slip limiter off at that wheel)"),
+    Signal("wheel_speed_fr", "rad/s", "front-right wheel speed (without a sensor: as above)"),
+    Signal("brake_pressure_driver", "Pa", "the driver's brake pressure (master cylinder; 0 without braking or without "
+           "a sensor)"),
 ])
 OUTPUTS = Layout("ECU outputs", [
     Signal("beta", "rad", "estimated sideslip at the CG, + velocity left of x"),
@@ -91,6 +97,11 @@ OUTPUTS = Layout("ECU outputs", [
            "steer_cmd less the driver's angle as the ECU read it (0 while the law is passive)"),
     Signal("beta_telemetry", "rad", "sideslip estimate for logs and telemetry: beta conditioned on zero "
            "disturbances while they are insignificant (telemetry_chi2_on/full); the law reads beta"),
+    *(Signal(f"brake_pressure_{w}", "Pa", f"{side} brake pressure command to the hydraulic unit: the driver's plus "
+             "the ECU's, slip-limited (the driver's alone without an allocation to the brakes)")
+      for w, side in (("fl", "front-left"), ("fr", "front-right"), ("rl", "rear-left"), ("rr", "rear-right"))),
+    Signal("yaw_moment_brakes", "N m", "yaw moment the ECU's brake pressures make before the slip limiter, + turns "
+           "left (0 without an allocation to the brakes)"),
 ])
 FIRMWARE_METHODS = LOOP_METHODS
 TELEMETRY_CHI2 = (0.5, 2.0)
@@ -207,6 +218,10 @@ class EcuDesign:
     ``d^T P_dd^-1 d`` is below this (:func:`kalman.telemetry_sideslip`) ..."""
     telemetry_chi2_full: float = TELEMETRY_CHI2[1]
     """... and the filter's own estimate from this, a smoothstep between."""
+    allocation: AllocationDesign | None = None
+    """How the law's yaw moment is shared between the rear motors and the friction brakes
+    (:mod:`controllers.allocation`); None: the motors alone, the driver's brake pressure passed through (the
+    ``motors`` mode of an allocation, to the bit)."""
 
     def __post_init__(self):
         if self.filter.method not in FIRMWARE_METHODS:
@@ -451,6 +466,10 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                                yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=mu_ref, steer_limited=steer_flag,
                                yaw_moment_limited=nz_flag, limit_share=limit_share(c, g["speed"] * gamma_lin, o))
     nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
+    if d.allocation is not None and d.allocation.mode != "motors":
+        # the brakes' share at the estimated friction, besides the motors' in a blend (controllers.allocation)
+        brakes_limit = brake_yaw_capacity(d.allocation, mu_est)
+        nz_limit = o.fmin(brakes_limit if d.allocation.mode == "brakes" else nz_limit + brakes_limit, c.nz_max)
     z_law_n, law_y = control_law(c, z_law, sig, o, nz_limit)
     law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
@@ -469,7 +488,17 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
     nz_gust, (gust_yaw_error, gust_rate) = sup_mod.gust_moment(
         c, (sup_st.gust_yaw_error, sup_st.gust_rate), law_st.yaw_rate_ref, est["yaw_rate"], beta_rate, straight,
         g["speed"], nz_limit, lag_dt, o)
-    nz_cmd = (nz_cmd + (1.0 - sup_n["blend"]) * nz_gust) * k_slip
+    nz_cmd = nz_cmd + (1.0 - sup_n["blend"]) * nz_gust
+    p_driver = o.fmax(g["brake_pressure_driver"], 0.0)
+    if d.allocation is None or d.allocation.mode == "motors":
+        pressures, nz_brakes = (p_driver,) * 4, 0.0 * mu_est
+    else:
+        # the brakes' share of the moment (controllers.allocation), each wheel within its grip at the estimated
+        # friction and lateral acceleration, slip-limited; the motors' share below, slip-controlled as before
+        omegas = tuple(g[f"wheel_speed_{w}"] for w in ("fl", "fr", "rl", "rr"))
+        nz_cmd, pressures, nz_brakes = allocate(d.allocation, nz_cmd, est["yaw_rate"], g["speed"], ay_car, mu_est,
+                                                omegas, p_driver, o)
+    nz_cmd = nz_cmd * k_slip
     sup_n.update(mu_est=mu_est, ay_demand=demand, slip_authority=k_slip, slip_lag=slip_lag,
                  gust_yaw_error=gust_yaw_error, gust_rate=gust_rate, limit_time=limit_time)
     # the law's integrators run only while it has authority
@@ -484,9 +513,19 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                        steer_cmd=steer_cmd, yaw_moment_cmd=nz_cmd, torque_rl=t_rl, torque_rr=t_rr,
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
                        drive_share=drive_share, mu_est=mu_est,
-                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est, steer_correction=0.0 * mu_est)
+                       fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est, steer_correction=0.0 * mu_est,
+                       **{f"brake_pressure_{w}": pr for w, pr in zip(("fl", "fr", "rl", "rr"), pressures)},
+                       yaw_moment_brakes=nz_brakes)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
+
+
+def commanded_moment(d: EcuDesign, ys: dict):
+    """The yaw moment the ECU's outputs ``ys`` ask of the actuators: the motors' and, with an allocation to the
+    brakes, the brakes'."""
+    if d.allocation is None or d.allocation.mode == "motors":
+        return ys["yaw_moment_cmd"]
+    return ys["yaw_moment_cmd"] + ys["yaw_moment_brakes"]
 
 
 def limit_share(c: TwoDofDesign, demand, o=NUMPY):
@@ -549,8 +588,12 @@ def with_authority(y, u, zg, broken, o=NUMPY):
     driver = INPUTS.as_dict(u)["steer_cmd_driver"]
     ys["steer_correction"] = (ys["steer_cmd"] - driver) * k
     ys["steer_cmd"] = ys["steer_cmd"] * k + driver * (1.0 - k)
-    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active"):
+    for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active", "yaw_moment_brakes"):
         ys[name] = ys[name] * k
+    # the brakes: the ECU's pressures, or the driver's as the authority ramps out
+    p_driver = o.fmax(INPUTS.as_dict(u)["brake_pressure_driver"], 0.0)
+    for w in ("fl", "fr", "rl", "rr"):
+        ys[f"brake_pressure_{w}"] = ys[f"brake_pressure_{w}"] * k + p_driver * (1.0 - k)
     ys["drive_share"] = 1.0 - (1.0 - ys["drive_share"]) * k
     ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])
     ys["bad_samples"] = gs.bad_samples
@@ -595,8 +638,10 @@ def ecu_core(d: EcuDesign, z, u, sched=None, o=NUMPY, with_course: bool = True, 
     z_est_n, est = ecu_estimate(d, z_est, u, o, with_course, moving)
     z_ctl_n, out = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
     y = with_authority(out, u, zg, broken, o)
-    # the guard compares the next period's applied yaw moment with this period's command
-    zg = guard_mod.with_command(zg, OUTPUTS.as_dict(y)["yaw_moment_cmd"], o)
+    # the guard compares the next period's applied yaw moment with this period's command (the motors' and the
+    # brakes')
+    ys = OUTPUTS.as_dict(y)
+    zg = guard_mod.with_command(zg, commanded_moment(d, ys), o)
     return o.concat([z_est_n, z_ctl_n, zg]), y
 
 

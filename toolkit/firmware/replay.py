@@ -41,8 +41,9 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = N
     """The (N, len(INPUTS)) ECU input matrix of a drive log (a :class:`DriveLog` or a mapping of columns).
 
     ``dt`` of the first row is the second row's spacing (``dt0`` for a one-row log);
-    no fix where ``gps_course`` is NaN; HDOP 1 and 99 satellites where unknown; rear wheel
-    speeds ``speed / wheel_radius`` (no slip) where the log has none (``wheel_radius``: the ECU's).
+    no fix where ``gps_course`` is NaN; HDOP 1 and 99 satellites where unknown; wheel
+    speeds ``speed / wheel_radius`` (no slip) where the log has none (``wheel_radius``: the ECU's); no driver's
+    brake pressure where the log has no ``brake_pressure_driver``.
     """
     cols = log.columns if hasattr(log, "columns") else log
     get = lambda k: np.asarray(cols[k], float) if k in cols else None  # noqa: E731
@@ -72,7 +73,8 @@ def ecu_inputs(log, mu: float, dt0: float = 1e-3, wheel_radius: float | None = N
     col["steer_limited"][:] = opt("steer_limited_last", 0.0)
     col["yaw_moment_limited"][:] = opt("yaw_moment_limited_last", 0.0)
     col["mu"][:] = mu
-    for side in ("rl", "rr"):
+    col["brake_pressure_driver"][:] = opt("brake_pressure_driver", 0.0)
+    for side in ("rl", "rr", "fl", "fr"):
         w = get(f"wheel_speed_{side}")
         if w is None or not np.all(np.isfinite(w)):
             if wheel_radius is None:

@@ -38,9 +38,12 @@ import evstab.controllers.supervisor as sup_mod
 import evstab.controllers.two_dof as ctl_mod
 from evstab.controllers.actuators import (OUTPUTS as ACT_OUTPUTS, SIGNALS as ACT_SIGNALS, STATE as ACT_STATE,
                                           ActuatorLimits, actuator_law)
+from evstab.controllers import brakes as brakes_mod
 from evstab.controllers.baselines import STATE as YAW_PI_STATE
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import COMMANDS, DISTURBANCES, TRUTH, PlantModel, VehicleParams, get_plant, truth_params
+from evstab.plants.errors import ParameterError
+from evstab.plants.model import brake_yaw_moment
 from evstab.plants.backend import CASADI, NUMPY, call_nodes
 from evstab.plants.disturbances import Disturbances, disturbance_profile
 from evstab.plants.maneuvers import Maneuver
@@ -80,6 +83,9 @@ EXTRA = Layout("loop signals", [
     Signal("mu_est", "-", "the ECU's friction estimate"),
     Signal("fault_word", "-", "the ECU's fault word (toolkit.ecu.guard.FAULT_BITS)"),
     Signal("drive_share", "-", "share of the driver's drive torque the ECU let through"),
+    *(Signal(f"brake_{c}", "N m", f"the {c} wheel brake's torque over the period (0 without an allocation to the "
+             "brakes)") for c in ("fl", "fr", "rl", "rr")),
+    Signal("yaw_moment_brakes_cmd", "N m", "the yaw moment the ECU's brake pressures make before the slip limiter"),
 ])
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
 MEAS = Layout("loop readings", [
@@ -163,7 +169,16 @@ class LoopSpec:
             Signal("flags", "-", "FLAGS", FLAGS.size),
             Signal("slots", "-", "GPS_SLOTS", GPS_SLOTS.size),
             *faults,
+            *([Signal("brakes", "-", "the wheel brakes' pressures (controllers.brakes.STATE)", brakes_mod.STATE.size)]
+              if self.brakes else []),
         ])
+
+    @property
+    def brakes(self) -> bool:
+        """Whether the ECU shares its yaw moment with the friction brakes (an allocation not ``motors``): the loop
+        then runs the hydraulic unit (:func:`controllers.brakes.brake_law`) and the plant's brakes."""
+        d = self.ecu.ecu
+        return d is not None and d.allocation is not None and d.allocation.mode != "motors"
 
     @property
     def sizes(self) -> list[int]:
@@ -209,6 +224,8 @@ class LoopSpec:
         names += [f"{j}.{k}" for j in GPS_SLOTS for k in SLOT]
         if self.ecu_faults:
             names += ["faults.clock"] + [f"faults.held_{n}" for n in ECU_INPUTS]
+        if self.brakes:
+            names += [f"brakes.{k}" for k in brakes_mod.STATE]
         if len(names) != sum(self.sizes):
             raise LoopError(f"loop state names ({len(names)}) do not match the loop state ({sum(self.sizes)})")
         return tuple(names)
@@ -241,8 +258,19 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     dt = spec.dt
 
     # 1. sensors sample the plant at the start of the period
+    brakes_prev = {}
+    if spec.brakes:  # the brakes' torques over the last period: the hydraulic unit's pressures times their gains
+        lacks = [f for f in brakes_mod.FIELDS + ("track_front", "track_rear", "wheel_radius") if f not in spec.fields]
+        if lacks:
+            raise ParameterError(f"{spec.plant}: an ECU that shares its yaw moment with the friction brakes needs the "
+                                 f"car's vehicle parameter(s) {', '.join(lacks)}; add them to the [vehicle] table")
+        z_brk = zs.brakes
+        brake_torques = [k * z_brk[i] for i, k in enumerate(brakes_mod.gains(sp))]
+        nz_brakes_applied = brake_yaw_moment(brake_torques, sp.wheel_radius, sp.track_front, sp.track_rear)
+        brakes_prev = {f"brake_{c}": t for c, t in zip(("fl", "fr", "rl", "rr"), brake_torques)}
     cmd_prev = COMMANDS.pack(o=o, steer=applied.steer, yaw_moment=applied.yaw_moment, speed_ref=speed_ref,
-                             drive_on=drive_on * (1.0 - applied.drive_cut), steer_rate=applied.steer_rate)
+                             drive_on=drive_on * (1.0 - applied.drive_cut), steer_rate=applied.steer_rate,
+                             **brakes_prev)
     y = model.h(x, model.command_map(cmd_prev, x, sp), w, sp)
     tr = TRUTH.as_dict(y)
     # GPS latency: the truth a fix describes is latched into a slot when it is measured and read
@@ -262,6 +290,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     radius = sp.wheel_radius if "wheel_radius" in spec.fields else None
     inp = {"steer": applied.steer, "yaw_moment": applied.yaw_moment, "bank": DISTURBANCES.unpack(w).bank}
     m = readings(tr, inp, noise, tuple(gps[k] for k in SLOT), fix, sensors, radius, o)
+
     meas = MEAS.pack({k: m[k] for k in MEAS}, o)
 
     # 2. the ECU step
@@ -276,13 +305,14 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "ay": m["ay"], "gps_valid": valid, "gps_course": valid * m["gps_course"],
              "gps_speed": fix * m["gps_speed"], "gps_hdop": o.if_else(fix > 0.5, spec.sensors.gps_hdop, 1.0),
              "gps_sats": o.if_else(fix > 0.5, float(spec.sensors.gps_sats), 99.0), "steer_cmd_driver": steer_drv,
-             "yaw_moment_applied": m["yaw_moment"], "steer_limited": flags.steer_limited,
-             "yaw_moment_limited": flags.yaw_moment_limited,
-             "mu": case["mu_assumed"]}
-        if radius is None:  # a plant without wheels: no rear wheel speeds, so no slip
-            g["wheel_speed_rl"] = g["wheel_speed_rr"] = m["speed"] / ecu.design.wheel_radius
+             "yaw_moment_applied": m["yaw_moment"] + (nz_brakes_applied if spec.brakes else 0.0),
+             "steer_limited": flags.steer_limited, "yaw_moment_limited": flags.yaw_moment_limited,
+             "mu": case["mu_assumed"], "brake_pressure_driver": 0.0 * steer_drv}
+        wheels = ("fl", "fr", "rl", "rr")
+        if radius is None:  # a plant without wheels: no wheel speeds, so no slip
+            g.update({f"wheel_speed_{c}": m["speed"] / ecu.design.wheel_radius for c in wheels})
         else:
-            g["wheel_speed_rl"], g["wheel_speed_rr"] = m["wheel_speed_rl"], m["wheel_speed_rr"]
+            g.update({f"wheel_speed_{c}": m[f"wheel_speed_{c}"] for c in wheels})
         if spec.ecu_faults:
             g, faults_n = _inject(spec, zs.faults, g, th, o)
             # an ECU reset: booting through the window (no step: the state is evstab_init's, the driver's
@@ -319,9 +349,16 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
         a = ACT_OUTPUTS.as_dict(av)
     rate = (a["steer"] - applied.steer) / dt
 
+    # the hydraulic unit: each wheel's pressure towards the ECU's command (controllers.brakes)
+    brake_cmd = {}
+    if spec.brakes:
+        z_brk_n, bo = brakes_mod.brake_law(sp, zs.brakes, [out[f"brake_pressure_{c}"] for c in ("fl", "fr", "rl", "rr")],
+                                           dt, o)
+        brake_cmd = {f"brake_{c}": brakes_mod.OUTPUTS.as_dict(bo)[f"brake_{c}"] for c in ("fl", "fr", "rl", "rr")}
+
     # 4. the plant over the period
     cmd = COMMANDS.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], speed_ref=speed_ref,
-                        drive_on=drive_on * drive_share, steer_rate=rate)
+                        drive_on=drive_on * drive_share, steer_rate=rate, **brake_cmd)
     x_n = rk4_step(model, sp, x, cmd, w, dt, spec.n_sub)
     parts = {"plant": x_n, "actuator": z_act_n,
              "applied": APPLIED.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_rate=rate,
@@ -332,13 +369,16 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
         parts["ecu"] = z_ecu_n
     if spec.ecu_faults:
         parts["faults"] = faults_n if ecu.kind != "driver" else zs.faults
+    if spec.brakes:
+        parts["brakes"] = z_brk_n
     z_n = spec.state_layout.pack(parts, o)
     extra = EXTRA.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], steer_driver=steer_drv, yaw_moment_cmd=nz_cmd,
                        beta_ref=beta_ref, yaw_rate_ref=yaw_rate_ref, beta_est=beta_est, yaw_rate_est=yaw_rate_est,
                        yaw_moment_limited=a["yaw_moment_limited"], steer_cmd=steer_cmd, steer_limited=a["steer_limited"],
                        steer_limited_last=flags.steer_limited, yaw_moment_limited_last=flags.yaw_moment_limited,
                        steer_rate=rate, active=active, mu_est=mu_est, fault_word=fault_word,
-                       drive_share=drive_share)
+                       drive_share=drive_share, **(brake_cmd or {f"brake_{c}": zero for c in ("fl", "fr", "rl", "rr")}),
+                       yaw_moment_brakes_cmd=out["yaw_moment_brakes"] if spec.brakes else zero)
     return z_n, y, extra, meas
 
 

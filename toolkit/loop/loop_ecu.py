@@ -6,12 +6,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 import evstab.controllers.supervisor as sup_mod
 import evstab.controllers.two_dof as ctl_mod
+from evstab.controllers.allocation import AllocationDesign, brake_yaw_capacity
 from evstab.controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams
@@ -24,7 +26,8 @@ from ..estimation import kalman as kal_mod
 from ..estimation.spec import FilterDesign
 from ..ecu import guard as guard_mod
 from ..ecu.step import (CONTROL_STATE, FIRMWARE_METHODS, INPUTS as ECU_INPUTS, OUTPUTS as ECU_OUTPUTS, EcuDesign,
-                           control_start, ecu_control, ecu_estimate, rear_torques, restart, with_authority)
+                        commanded_moment, control_start, ecu_control, ecu_estimate, rear_torques, restart,
+                        with_authority)
 
 CONTROLLERS = ("none", "yaw-pi", "two-dof", "two-dof-true")
 
@@ -172,14 +175,18 @@ class LoopEcu:
                                  steer_cmd=c.steer, yaw_moment_cmd=c.yaw_moment, torque_rl=t_rl, torque_rr=t_rr,
                                  beta_ref=c.beta_ref, yaw_rate_ref=c.yaw_rate_ref, active=1.0 + zero, drive_share=1.0 + zero,
                                  mu_est=g["mu"],
-                                 fault_word=zero, bad_samples=zero, steer_correction=zero)
+                                 fault_word=zero, bad_samples=zero, steer_correction=zero,
+                                 **{f"brake_pressure_{w}": o.fmax(g["brake_pressure_driver"], 0.0)
+                                    for w in ("fl", "fr", "rl", "rr")}, yaw_moment_brakes=zero)
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
                 ys = ECU_OUTPUTS.as_dict(y)
                 ys["steer_cmd"] = g["steer_cmd_driver"]
-                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr"):
+                for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "yaw_moment_brakes"):
                     ys[name] = zero
+                for w in ("fl", "fr", "rl", "rr"):
+                    ys[f"brake_pressure_{w}"] = o.fmax(g["brake_pressure_driver"], 0.0)
                 ys["drive_share"] = 1.0 + zero
                 y = ECU_OUTPUTS.pack(ys, o)
                 parts = CONTROL_STATE.as_dict(z_ctl_n)
@@ -189,23 +196,27 @@ class LoopEcu:
                                                 supervisor=parts["supervisor"])
         y = with_authority(y, u, zg, broken, o)
         # the guard compares the next period's applied yaw moment with this period's command
-        z_ctl_n = o.concat([z_ctl_n, guard_mod.with_command(zg, ECU_OUTPUTS.as_dict(y)["yaw_moment_cmd"], o)])
+        z_ctl_n = o.concat([z_ctl_n, guard_mod.with_command(zg, commanded_moment(d, ECU_OUTPUTS.as_dict(y)), o)])
         z_next = z_ctl_n if z_est_n is None else o.concat([z_est_n, z_ctl_n])
         return z_next, y
 
 
 def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: str | FilterDesign = "dakf",
-             latency: float = 0.0, design: TwoDofDesign | EcuDesign | None = None) -> LoopEcu:
+             latency: float = 0.0, design: TwoDofDesign | EcuDesign | None = None,
+             allocation: str | AllocationDesign | None = None) -> LoopEcu:
     """The ECU a loop runs: ``design`` if it is an :class:`EcuDesign` (a design folder's, say),
     else the firmware ECU made of ``estimator`` (a method designed for ``nominal`` with the GPS
     ``latency`` it compensates, or a designed filter) and ``design`` (default seed 003's gains),
-    on the speed schedule of ``nominal``."""
+    on the speed schedule of ``nominal``. ``allocation``: how the yaw moment is shared with the friction brakes
+    (:mod:`controllers.allocation`: a mode of ``nominal``'s allocation, or a design; None: the motors alone; see
+    :func:`with_allocation`)."""
     if kind == "driver":
         return LoopEcu("driver")
     if kind not in CONTROLLERS:
         raise LoopError(f"unknown controller '{kind}'; known: {', '.join(CONTROLLERS)}")
+    alloc = AllocationDesign.from_vehicle(nominal, allocation) if isinstance(allocation, str) else allocation
     if isinstance(design, EcuDesign):
-        return LoopEcu(kind, design)
+        return LoopEcu(kind, design if alloc is None else with_allocation(design, alloc))
     filt = estimator if isinstance(estimator, FilterDesign) else None
     if filt is None:
         if estimator not in FIRMWARE_METHODS:
@@ -215,4 +226,19 @@ def loop_ecu(kind: str, nominal: VehicleParams, *, dt: float = 1e-3, estimator: 
     ctl = design if design is not None else TwoDofDesign(nominal.as_nominal(), dt=dt)
     ctl.params.require("track_rear", "wheel_radius", "max_motor_torque", model="the stability loop's ECU "
                        "(yaw-moment split over the rear motors)")
-    return LoopEcu(kind, EcuDesign.from_designs(filt, ctl))
+    ecu = EcuDesign.from_designs(filt, ctl)
+    return LoopEcu(kind, ecu if alloc is None else with_allocation(ecu, alloc))
+
+
+def with_allocation(ecu: EcuDesign, alloc: AllocationDesign) -> EcuDesign:
+    """``ecu`` sharing its yaw moment as ``alloc`` says: the law may ask what the brakes make at ``mu_max``
+    (:func:`controllers.allocation.brake_yaw_capacity`; in a blend besides the motors' ``nz_max``), and in
+    ``brakes`` mode it has no steer correction (a conventional ESC: ``steer_authority`` 0). ``motors``: the
+    allocation alone is set (the law as it is)."""
+    c = ecu.controller
+    if alloc.mode == "motors":
+        return dataclasses.replace(ecu, allocation=alloc)
+    conventional = alloc.mode == "brakes"
+    cap = brake_yaw_capacity(alloc, c.mu_max) + (0.0 if conventional else c.nz_max)
+    ctl = dataclasses.replace(c, yaw_moment_max=cap, steer_authority=0.0 if conventional else c.steer_authority)
+    return dataclasses.replace(ecu, controller=ctl, allocation=alloc)
