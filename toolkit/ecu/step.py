@@ -60,7 +60,8 @@ INPUTS = Layout("ECU inputs", [
     Signal("gps_hdop", "-", "horizontal dilution of precision of the fix"),
     Signal("gps_sats", "-", "satellites used in the fix (fewer than 4: the fix is not used)", ctype="int"),
     Signal("steer_cmd_driver", "rad", "driver's road-wheel angle command (hand-wheel angle / steering ratio)"),
-    Signal("yaw_moment_applied", "N m", "yaw moment the rear motors made over the last period, + turns left"),
+    Signal("yaw_moment_applied", "N m", "yaw moment the actuators made over the last period, + turns left: the rear "
+           "motors' and, where the design shares its moment with the brakes, the brakes' at their pressures"),
     Signal("steer_limited", "-", "optional: 1 when the steer actuator was at a limit in the last period (0 without actuator feedback: the ECU's own limit flags feed the anti-windup)", ctype="int"),
     Signal("yaw_moment_limited", "-", "optional: 1 when the motors were at a torque limit in the last period (0 without actuator feedback: as above)", ctype="int"),
     Signal("mu", "-", "optional: friction from a road sensor, an upper bound on the ECU's own estimate (without a sensor: the design's mu_max, or any larger value)"),
