@@ -38,6 +38,8 @@ from evstab.plants.backend import NUMPY
 from evstab.plants.errors import SettingsError
 from evstab.plants.model import brake_yaw_moment
 
+from .brakes import FIELDS as BRAKE_FIELDS
+
 MODES = ("motors", "brakes", "blend")
 
 
@@ -88,8 +90,7 @@ class AllocationDesign:
     def from_vehicle(cls, p, mode: str = "motors", **settings) -> "AllocationDesign":
         """The allocation of vehicle ``p`` (:class:`plants.params.VehicleParams`: its geometry, brakes and motor
         torque limit; a :class:`plants.errors.ParameterError` naming what the file lacks) in ``mode``."""
-        from .brakes import FIELDS
-        p.require("cg_height", "track_front", "track_rear", "wheel_radius", "max_motor_torque", *FIELDS,
+        p.require("cg_height", "track_front", "track_rear", "wheel_radius", "max_motor_torque", *BRAKE_FIELDS,
                   model="the brakes' allocation")
         return cls(mass=p.mass, lf=p.lf, lr=p.lr, cg_height=p.cg_height, track_front=p.track_front,
                    track_rear=p.track_rear, wheel_radius=p.wheel_radius, brake_gain_front=p.brake_gain_front,

@@ -425,7 +425,7 @@ def guard(s: GuardSettings, z, g: dict, dt_nominal: float, wheel_radius: float, 
     nxt["course_turn"] = o.if_else(changed > 0.5, 0.0, o.fmin(o.fmax(turn, -10.0), 10.0))
     # nor is one whose course has moved from the last good fix's by more than the lateral acceleration turned the
     # car's velocity since (a_y / v is the course's rate, whatever the sideslip does): a receiver's jump or offset
-    moved = o.fmin(o.fmax(st["course_moved"] + clean["ay"] / o.fmax(v, s.consistency_speed) * dt_c, -np.pi), np.pi)
+    moved = o.fmin(o.fmax(st["course_moved"] + kinematic * dt_c, -np.pi), np.pi)
     age = st["course_age"] + dt_c
     diff = g["gps_course"] - st["course_anchor"] - moved
     diff = o.if_else(diff > np.pi, diff - 2.0 * np.pi, o.if_else(diff < -np.pi, diff + 2.0 * np.pi, diff))

@@ -30,6 +30,7 @@ import numpy as np
 
 from evstab.controllers import supervisor as sup_mod
 from evstab.controllers.allocation import AllocationDesign, allocate, brake_yaw_capacity
+from evstab.controllers.brakes import WHEELS
 from evstab.controllers import two_dof as ctl_mod
 from evstab.controllers.schedule import ROWS, SpeedSchedule
 from evstab.controllers.two_dof import TwoDofDesign, control_law, reference, yaw_rate_limit
@@ -240,6 +241,11 @@ class EcuDesign:
         if not np.isfinite(self.controller.nz_max):
             raise ModelError("the controller's yaw_moment_max is not finite: give the vehicle max_motor_torque, "
                              "track_rear and wheel_radius (or set yaw_moment_max)")
+
+    @property
+    def brakes(self) -> bool:
+        """Whether the law's yaw moment is shared with the friction brakes (an allocation not in ``motors`` mode)."""
+        return self.allocation is not None and self.allocation.mode != "motors"
 
     @classmethod
     def from_designs(cls, filt: FilterDesign, ctl: TwoDofDesign, schedule: SpeedSchedule | None = None) -> "EcuDesign":
@@ -467,10 +473,11 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                                yaw_rate=est["yaw_rate"], d1=est["d1"], d2=est["d2"], mu=mu_ref, steer_limited=steer_flag,
                                yaw_moment_limited=nz_flag, limit_share=limit_share(c, g["speed"] * gamma_lin, o))
     nz_limit = sup_mod.yaw_moment_limit(c, mu_est, use, o)
-    if d.allocation is not None and d.allocation.mode != "motors":
+    alloc = d.allocation
+    if d.brakes and alloc is not None:
         # the brakes' share at the estimated friction, besides the motors' in a blend (controllers.allocation)
-        brakes_limit = brake_yaw_capacity(d.allocation, mu_est)
-        nz_limit = o.fmin(brakes_limit if d.allocation.mode == "brakes" else nz_limit + brakes_limit, c.nz_max)
+        brakes_limit = brake_yaw_capacity(alloc, mu_est)
+        nz_limit = o.fmin(brakes_limit if alloc.mode == "brakes" else nz_limit + brakes_limit, c.nz_max)
     z_law_n, law_y = control_law(c, z_law, sig, o, nz_limit)
     law = ctl_mod.OUTPUTS.unpack(law_y)
     # the sideslip rate from the sensors, a_y / v - r (kinematics: it needs no tyre model)
@@ -491,12 +498,12 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
         g["speed"], nz_limit, lag_dt, o)
     nz_cmd = nz_cmd + (1.0 - sup_n["blend"]) * nz_gust
     p_driver = o.fmax(g["brake_pressure_driver"], 0.0)
-    if d.allocation is None or d.allocation.mode == "motors":
+    if not d.brakes:
         pressures, nz_brakes = (p_driver,) * 4, 0.0 * mu_est
     else:
         # the brakes' share of the moment (controllers.allocation), each wheel within its grip at the estimated
         # friction and lateral acceleration, slip-limited; the motors' share below, slip-controlled as before
-        omegas = tuple(g[f"wheel_speed_{w}"] for w in ("fl", "fr", "rl", "rr"))
+        omegas = tuple(g[f"wheel_speed_{w}"] for w in WHEELS)
         nz_cmd, pressures, nz_brakes = allocate(d.allocation, nz_cmd, est["yaw_rate"], g["speed"], ay_car, mu_est,
                                                 omegas, p_driver, o)
     nz_cmd = nz_cmd * k_slip
@@ -515,7 +522,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
                        beta_ref=law.beta_ref, yaw_rate_ref=law.yaw_rate_ref, active=sup_n["blend"],
                        drive_share=drive_share, mu_est=mu_est,
                        fault_word=0.0 * mu_est, bad_samples=0.0 * mu_est, steer_correction=0.0 * mu_est,
-                       **{f"brake_pressure_{w}": pr for w, pr in zip(("fl", "fr", "rl", "rr"), pressures)},
+                       **{f"brake_pressure_{w}": pr for w, pr in zip(WHEELS, pressures)},
                        yaw_moment_brakes=nz_brakes)
     z_next = CONTROL_STATE.pack(o=o, controller=ctl_mod.STATE.pack(law_n, o), supervisor=sup_mod.STATE.pack(sup_n, o))
     return z_next, out
@@ -524,9 +531,7 @@ def ecu_control(d: EcuDesign, z_ctl, u, est: dict, o=NUMPY, fresh=0.0):
 def commanded_moment(d: EcuDesign, ys: dict):
     """The yaw moment the ECU's outputs ``ys`` ask of the actuators: the motors' and, with an allocation to the
     brakes, the brakes'."""
-    if d.allocation is None or d.allocation.mode == "motors":
-        return ys["yaw_moment_cmd"]
-    return ys["yaw_moment_cmd"] + ys["yaw_moment_brakes"]
+    return ys["yaw_moment_cmd"] + ys["yaw_moment_brakes"] if d.brakes else ys["yaw_moment_cmd"]
 
 
 def limit_share(c: TwoDofDesign, demand, o=NUMPY):
@@ -586,14 +591,15 @@ def with_authority(y, u, zg, broken, o=NUMPY):
     gs = guard_mod.STATE.unpack(zg)
     k = gs.authority
     ys = OUTPUTS.as_dict(y)
-    driver = INPUTS.as_dict(u)["steer_cmd_driver"]
+    g = INPUTS.as_dict(u)
+    driver = g["steer_cmd_driver"]
     ys["steer_correction"] = (ys["steer_cmd"] - driver) * k
     ys["steer_cmd"] = ys["steer_cmd"] * k + driver * (1.0 - k)
     for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "active", "yaw_moment_brakes"):
         ys[name] = ys[name] * k
     # the brakes: the ECU's pressures, or the driver's as the authority ramps out
-    p_driver = o.fmax(INPUTS.as_dict(u)["brake_pressure_driver"], 0.0)
-    for w in ("fl", "fr", "rl", "rr"):
+    p_driver = o.fmax(g["brake_pressure_driver"], 0.0)
+    for w in WHEELS:
         ys[f"brake_pressure_{w}"] = ys[f"brake_pressure_{w}"] * k + p_driver * (1.0 - k)
     ys["drive_share"] = 1.0 - (1.0 - ys["drive_share"]) * k
     ys["fault_word"] = gs.fault_word + broken * float(2 ** guard_mod.FAULT_BITS["state"])

@@ -104,9 +104,9 @@ class EcuProgram:
 
     @property
     def guard_chunk_fn(self) -> ca.Function:
-        """``(zg0, U) -> (zg_end, [U_clean; zg])`` over :data:`CHUNK` samples: the input guard alone, its state
-        started from ``zg0`` and the rest of the step's state at 0. Only its guarded speed is read (the schedule's
-        tables are read at it): the speed's checks read the inputs and the guard's own speed history alone, so it is
+        """``(zg0, U) -> (zg_end, speed)`` over :data:`CHUNK` samples: the input guard alone, its state started from
+        ``zg0`` and the rest of the step's state at 0, and its guarded speed (the schedule's tables are read at
+        it): the speed's checks read the inputs and the guard's own speed history alone, so it is
         the step's; the rest of the guard reads the law's authority and command too (the vote, the two steer angles,
         the applied yaw moment), which the step (:attr:`chunk_fn`) runs the guard with."""
         if self._guard_chunk is None:
@@ -119,7 +119,7 @@ class EcuProgram:
             z_full = ca.vertcat(ca.MX.zeros(lay.index("guard")), zg)
             zn, uc = g(z_full, u, c)
             zg_n = zn[lay.index("guard"):]
-            step = ca.Function("guard_step", [zg, u, c], [zg_n, ca.vertcat(uc, zg_n)])
+            step = ca.Function("guard_step", [zg, u, c], [zg_n, uc[INPUTS.index("speed")]])
             acc = step.mapaccum("guard_acc", CHUNK)
             z0, U, C = ca.MX.sym("z0", ng), ca.MX.sym("U", INPUTS.size, CHUNK), ca.MX.sym("c", nc)
             Z, Y = acc(z0, U, ca.repmat(C, 1, CHUNK))
@@ -163,10 +163,9 @@ class EcuProgram:
                 z, Y[k] = ecu_core(d, z, uc, d.schedule_inputs(uc[ispeed]), NUMPY, with_course=bool(uc[ifix] > 0.5))
             return Y
         # the guarded speed first (the schedule's tables are read at it), then the step with its guard per sample
-        G = run_chunks(z[ig:], [U], INPUTS.size + guard_mod.STATE.size, CHUNK,
-                       c_fn=self._gc if self.backend == "c" else None, casadi_fn=self.guard_chunk_fn,
-                       constants=[self.cal])
-        S = d.schedule_inputs(G[:, ispeed])
+        speed = run_chunks(z[ig:], [U], 1, CHUNK, c_fn=self._gc if self.backend == "c" else None,
+                           casadi_fn=self.guard_chunk_fn, constants=[self.cal])
+        S = d.schedule_inputs(speed[:, 0])
         return run_chunks(z, [np.ascontiguousarray(U, dtype=float), S], ny, CHUNK,
                           c_fn=self._c if self.backend == "c" else None, casadi_fn=self.chunk_fn, constants=[self.cal],
                           fix_column=ifix)

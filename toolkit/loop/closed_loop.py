@@ -84,7 +84,7 @@ EXTRA = Layout("loop signals", [
     Signal("fault_word", "-", "the ECU's fault word (toolkit.ecu.guard.FAULT_BITS)"),
     Signal("drive_share", "-", "share of the driver's drive torque the ECU let through"),
     *(Signal(f"brake_{c}", "N m", f"the {c} wheel brake's torque over the period (0 without an allocation to the "
-             "brakes)") for c in ("fl", "fr", "rl", "rr")),
+             "brakes)") for c in brakes_mod.WHEELS),
     Signal("yaw_moment_brakes_cmd", "N m", "the yaw moment the ECU's brake pressures make before the slip limiter"),
 ])
 """Per-sample loop signals besides the truth: applied commands, driver, ECU outputs, limit flags."""
@@ -155,6 +155,14 @@ class LoopSpec:
     """Trace the fault injector between the sensors and the ECU (:data:`FAULT_PARAMS`: run-time parameters;
     a sample clock and each input's held value in the loop state)."""
 
+    def __post_init__(self):
+        if self.brakes:
+            lacks = [f for f in brakes_mod.FIELDS + ("track_front", "track_rear", "wheel_radius") if f not in self.fields]
+            if lacks:
+                raise ParameterError(f"{self.plant}: an ECU that shares its yaw moment with the friction brakes needs "
+                                     f"the car's vehicle parameter(s) {', '.join(lacks)}; add them to the [vehicle] "
+                                     "table")
+
     @functools.cached_property
     def state_layout(self) -> Layout:
         """Loop state: plant, ECU, actuators, applied commands (:data:`APPLIED`), limit flags
@@ -177,8 +185,7 @@ class LoopSpec:
     def brakes(self) -> bool:
         """Whether the ECU shares its yaw moment with the friction brakes (an allocation not ``motors``): the loop
         then runs the hydraulic unit (:func:`controllers.brakes.brake_law`) and the plant's brakes."""
-        d = self.ecu.ecu
-        return d is not None and d.allocation is not None and d.allocation.mode != "motors"
+        return self.ecu.ecu is not None and self.ecu.ecu.brakes
 
     @property
     def sizes(self) -> list[int]:
@@ -260,14 +267,10 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     # 1. sensors sample the plant at the start of the period
     brakes_prev = {}
     if spec.brakes:  # the brakes' torques over the last period: the hydraulic unit's pressures times their gains
-        lacks = [f for f in brakes_mod.FIELDS + ("track_front", "track_rear", "wheel_radius") if f not in spec.fields]
-        if lacks:
-            raise ParameterError(f"{spec.plant}: an ECU that shares its yaw moment with the friction brakes needs the "
-                                 f"car's vehicle parameter(s) {', '.join(lacks)}; add them to the [vehicle] table")
         z_brk = zs.brakes
         brake_torques = [k * z_brk[i] for i, k in enumerate(brakes_mod.gains(sp))]
         nz_brakes_applied = brake_yaw_moment(brake_torques, sp.wheel_radius, sp.track_front, sp.track_rear)
-        brakes_prev = {f"brake_{c}": t for c, t in zip(("fl", "fr", "rl", "rr"), brake_torques)}
+        brakes_prev = {f"brake_{c}": t for c, t in zip(brakes_mod.WHEELS, brake_torques)}
     cmd_prev = COMMANDS.pack(o=o, steer=applied.steer, yaw_moment=applied.yaw_moment, speed_ref=speed_ref,
                              drive_on=drive_on * (1.0 - applied.drive_cut), steer_rate=applied.steer_rate,
                              **brakes_prev)
@@ -290,7 +293,6 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     radius = sp.wheel_radius if "wheel_radius" in spec.fields else None
     inp = {"steer": applied.steer, "yaw_moment": applied.yaw_moment, "bank": DISTURBANCES.unpack(w).bank}
     m = readings(tr, inp, noise, tuple(gps[k] for k in SLOT), fix, sensors, radius, o)
-
     meas = MEAS.pack({k: m[k] for k in MEAS}, o)
 
     # 2. the ECU step
@@ -308,7 +310,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
              "yaw_moment_applied": m["yaw_moment"] + (nz_brakes_applied if spec.brakes else 0.0),
              "steer_limited": flags.steer_limited, "yaw_moment_limited": flags.yaw_moment_limited,
              "mu": case["mu_assumed"], "brake_pressure_driver": 0.0 * steer_drv}
-        wheels = ("fl", "fr", "rl", "rr")
+        wheels = brakes_mod.WHEELS
         if radius is None:  # a plant without wheels: no wheel speeds, so no slip
             g.update({f"wheel_speed_{c}": m["speed"] / ecu.design.wheel_radius for c in wheels})
         else:
@@ -352,9 +354,10 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
     # the hydraulic unit: each wheel's pressure towards the ECU's command (controllers.brakes)
     brake_cmd = {}
     if spec.brakes:
-        z_brk_n, bo = brakes_mod.brake_law(sp, zs.brakes, [out[f"brake_pressure_{c}"] for c in ("fl", "fr", "rl", "rr")],
+        z_brk_n, bo = brakes_mod.brake_law(sp, zs.brakes, [out[f"brake_pressure_{c}"] for c in brakes_mod.WHEELS],
                                            dt, o)
-        brake_cmd = {f"brake_{c}": brakes_mod.OUTPUTS.as_dict(bo)[f"brake_{c}"] for c in ("fl", "fr", "rl", "rr")}
+        torques = brakes_mod.OUTPUTS.as_dict(bo)
+        brake_cmd = {f"brake_{c}": torques[f"brake_{c}"] for c in brakes_mod.WHEELS}
 
     # 4. the plant over the period
     cmd = COMMANDS.pack(o=o, steer=a["steer"], yaw_moment=a["yaw_moment"], speed_ref=speed_ref,
@@ -377,7 +380,7 @@ def loop_step(spec: LoopSpec, model: PlantModel, sp, z, u, theta, o=NUMPY):
                        yaw_moment_limited=a["yaw_moment_limited"], steer_cmd=steer_cmd, steer_limited=a["steer_limited"],
                        steer_limited_last=flags.steer_limited, yaw_moment_limited_last=flags.yaw_moment_limited,
                        steer_rate=rate, active=active, mu_est=mu_est, fault_word=fault_word,
-                       drive_share=drive_share, **(brake_cmd or {f"brake_{c}": zero for c in ("fl", "fr", "rl", "rr")}),
+                       drive_share=drive_share, **(brake_cmd or {f"brake_{c}": zero for c in brakes_mod.WHEELS}),
                        yaw_moment_brakes_cmd=out["yaw_moment_brakes"] if spec.brakes else zero)
     return z_n, y, extra, meas
 

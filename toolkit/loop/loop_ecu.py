@@ -15,6 +15,7 @@ import evstab.controllers.supervisor as sup_mod
 import evstab.controllers.two_dof as ctl_mod
 from evstab.controllers.allocation import AllocationDesign, brake_yaw_capacity
 from evstab.controllers.baselines import STATE as YAW_PI_STATE, yaw_pi_law
+from evstab.controllers.brakes import WHEELS
 from evstab.controllers.two_dof import TwoDofDesign
 from evstab.plants import VehicleParams
 from evstab.plants.backend import NUMPY
@@ -177,7 +178,7 @@ class LoopEcu:
                                  mu_est=g["mu"],
                                  fault_word=zero, bad_samples=zero, steer_correction=zero,
                                  **{f"brake_pressure_{w}": o.fmax(g["brake_pressure_driver"], 0.0)
-                                    for w in ("fl", "fr", "rl", "rr")}, yaw_moment_brakes=zero)
+                                    for w in WHEELS}, yaw_moment_brakes=zero)
         else:
             z_ctl_n, y = ecu_control(d, z_ctl, u, est, o, guard_mod.STATE.unpack(zg).restart)
             if self.kind == "none":  # pass the driver through; keep the reference for comparison
@@ -185,7 +186,7 @@ class LoopEcu:
                 ys["steer_cmd"] = g["steer_cmd_driver"]
                 for name in ("yaw_moment_cmd", "torque_rl", "torque_rr", "yaw_moment_brakes"):
                     ys[name] = zero
-                for w in ("fl", "fr", "rl", "rr"):
+                for w in WHEELS:
                     ys[f"brake_pressure_{w}"] = o.fmax(g["brake_pressure_driver"], 0.0)
                 ys["drive_share"] = 1.0 + zero
                 y = ECU_OUTPUTS.pack(ys, o)
